@@ -1,0 +1,1 @@
+"""Command-line interface: the `locnerf` command and its subcommands."""

@@ -1,0 +1,88 @@
+"""Localizer configuration: the original Loc-NeRF presets and loading from TOML.
+
+Presets reproduce the original code's parameters (design notes section 5):
+
+============== ========= ======= == ========= =============== ====================== ====================== ==========
+preset         particles reduced M  α_refine  α_super_refine  position σ             rotation σ (rad)       protection
+============== ========= ======= == ========= =============== ====================== ====================== ==========
+llff           300       100     64 0.08      0.03            0.01                   0.02                   10
+llff_global    600       100     32 0.08      0.03            0.02                   (0.01, 0.04, 0.01)     10
+jackal         400       150     32 0.18      0.03            (0.002, 0.002, 0.003)  0.002                  15
+============== ========= ======= == ========= =============== ====================== ====================== ==========
+
+A TOML file holds a ``LocalizerConfig`` as tables, optionally starting from a preset::
+
+    preset = "llff"          # optional; fields below override it
+    particles = 400
+    [motion]
+    translation_sigma = [0.01, 0.01, 0.02]
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from locnerf.filter.localizer import LocalizerConfig
+
+
+def _preset_fields(particles: int, reduced: int, pixels: int, alpha_refine: float, position, rotation, protection: int) -> dict[str, Any]:
+    triple = lambda v: tuple(v) if isinstance(v, tuple) else (v, v, v)  # noqa: E731
+    return {
+        "particles": particles,
+        "measurement": {"pixels": pixels, "exponent": 4.0},
+        "annealing": {"alpha_refine": alpha_refine, "alpha_super_refine": 0.03, "reduced_particles": reduced},
+        "motion": {"translation_sigma": triple(position), "rotation_sigma": triple(rotation)},
+        "convergence_protection": {"count": protection, "half_width": 0.2},
+        "mlp_coarse_samples": 64,
+        "mlp_fine_samples": 64,
+    }
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "llff": _preset_fields(300, 100, 64, 0.08, 0.01, 0.02, 10),
+    "llff_global": _preset_fields(600, 100, 32, 0.08, 0.02, (0.01, 0.04, 0.01), 10),
+    "jackal": _preset_fields(400, 150, 32, 0.18, (0.002, 0.002, 0.003), 0.002, 15),
+}
+
+
+def _deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in override.items():
+        merged[key] = _deep_merge(merged[key], value) if isinstance(value, dict) and isinstance(merged.get(key), dict) else value
+    return merged
+
+
+def preset(name: str, **overrides: Any) -> LocalizerConfig:
+    """The named preset (``llff``, ``llff_global``, ``jackal``), with optional field overrides."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}: expected one of {sorted(PRESETS)}")
+    return LocalizerConfig.model_validate(_deep_merge(PRESETS[name], overrides))
+
+
+def config_from_mapping(data: dict[str, Any], source: str = "<mapping>") -> LocalizerConfig:
+    """Build a config from a (TOML-shaped) mapping, starting from ``data["preset"]`` when present."""
+    data = dict(data)
+    preset_name = data.pop("preset", None)
+    if preset_name is not None and preset_name not in PRESETS:
+        raise ValueError(f"{source}: unknown preset {preset_name!r}: expected one of {sorted(PRESETS)}")
+    base = PRESETS[preset_name] if preset_name is not None else {}
+    try:
+        return LocalizerConfig.model_validate(_deep_merge(base, data))
+    except ValidationError as error:
+        raise ValueError(f"{source}: invalid localizer configuration:\n{error}") from error
+
+
+def load_config(path: str | Path) -> LocalizerConfig:
+    """Read a localizer configuration from a TOML file (see the module docstring)."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: configuration file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{path}: not valid TOML ({error})") from error
+    return config_from_mapping(data, source=str(path))

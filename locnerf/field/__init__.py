@@ -1,0 +1,1 @@
+"""Radiance-field map backends behind one protocol, and the map file."""

@@ -1,0 +1,24 @@
+"""The Loc-NeRF particle filter: particles, motion and measurement models, resampling, annealing,
+initialisation, recovery, the estimate, and the localizer that ties them together (no I/O)."""
+
+from locnerf.filter.estimate import PoseEstimate
+from locnerf.filter.localizer import (
+    ConvergenceProtectionConfig,
+    Localizer,
+    LocalizerConfig,
+    MergeReport,
+    SearchRegion,
+    UpdateSnapshot,
+)
+from locnerf.filter.particles import ParticleSet
+
+__all__ = [
+    "ConvergenceProtectionConfig",
+    "Localizer",
+    "LocalizerConfig",
+    "MergeReport",
+    "ParticleSet",
+    "PoseEstimate",
+    "SearchRegion",
+    "UpdateSnapshot",
+]

@@ -1,0 +1,48 @@
+"""The filter's estimate: weighted mean pose, tangent-space covariance and summary figures."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from locnerf.filter.particles import ParticleSet, weighted_position_spread
+from locnerf.filter.resampling import effective_sample_size
+from locnerf.geometry.averaging import tangent_covariance, weighted_pose_mean
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """One estimate of the camera pose.
+
+    Attributes:
+        pose: (4, 4) float64 ``T_world_cam`` in map units: weighted mean position, weighted
+            geodesic L2 mean rotation.
+        covariance: (6, 6) float64 covariance in the tangent space of ``pose`` (rotation first).
+        spread: largest per-axis weighted std of particle positions (map units).
+        effective_sample_size: ``1 / Σ w²``.
+        particle_count: N.
+        stage: annealing stage name.
+    """
+
+    pose: torch.Tensor
+    covariance: torch.Tensor
+    spread: float
+    effective_sample_size: float
+    particle_count: int
+    stage: str
+
+
+def estimate_from_particles(particles: ParticleSet, stage: str) -> PoseEstimate:
+    """Compute the estimate of design section 1 from a particle set (in float64)."""
+    poses = particles.poses.double().cpu()
+    weights = particles.weights.double().cpu()
+    mean = weighted_pose_mean(poses, weights)
+    return PoseEstimate(
+        pose=mean,
+        covariance=tangent_covariance(poses, mean, weights),
+        spread=weighted_position_spread(poses[:, :3, 3], weights),
+        effective_sample_size=effective_sample_size(weights),
+        particle_count=particles.count,
+        stage=stage,
+    )

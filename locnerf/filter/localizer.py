@@ -1,0 +1,322 @@
+"""The Monte Carlo localizer: predict, snapshot, merge (and a synchronous update), no I/O, no clock.
+
+Delayed updates (design section 3): :meth:`Localizer.snapshot` records the generation, ids and
+poses that an update will be computed on; :meth:`Localizer.merge` later gives each current particle
+the log-likelihood of its ancestor in that generation, then normalises, resamples and anneals. A
+result whose snapshot predates a re-initialisation (an older ``epoch``) is stale: refused and
+counted. The localizer is used from one thread only.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from locnerf.filter import initialization
+from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
+from locnerf.filter.estimate import PoseEstimate, estimate_from_particles
+from locnerf.filter.lineage import NO_ANCESTOR, Lineage, lookup
+from locnerf.filter.measurement import (
+    MeasurementConfig,
+    RenderRays,
+    observed_colours,
+    particle_log_likelihoods,
+    sample_pixels,
+)
+from locnerf.filter.motion import MotionNoiseConfig, propagate_poses
+from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
+from locnerf.filter.recovery import LikelihoodAverages, RecoveryConfig
+from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
+from locnerf.geometry.validation import validate_poses
+from locnerf.render.camera import PinholeIntrinsics
+
+logger = logging.getLogger(__name__)
+
+
+class ConvergenceProtectionConfig(BaseModel):
+    """Loc-NeRF's "convergence protection": before each update, re-draw a few particles near the mean."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    count: int = Field(10, ge=0, description="Particles whose positions are re-drawn before each update (0 disables).")
+    half_width: float = Field(0.2, ge=0, description="Re-drawn positions are uniform in mean ± half_width per axis (map units).")
+
+
+class LocalizerConfig(BaseModel):
+    """Everything the particle filter needs; presets in :mod:`locnerf.config`."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    particles: int = Field(300, ge=1, description="Particle count while not converged (COARSE stage).")
+    motion: MotionNoiseConfig = Field(default_factory=MotionNoiseConfig, description="Prediction noise δ.")
+    measurement: MeasurementConfig = Field(default_factory=MeasurementConfig, description="Photometric likelihood (eq. 5).")
+    annealing: AnnealingConfig = Field(default_factory=AnnealingConfig, description="Algorithm 1 coarse-to-fine schedule.")
+    resampler: ResamplerName = Field("multinomial", description="Resampling scheme: multinomial (the paper) or systematic.")
+    convergence_protection: ConvergenceProtectionConfig = Field(
+        default_factory=ConvergenceProtectionConfig, description="Re-drawing of a few particles before each update."
+    )
+    recovery: RecoveryConfig = Field(default_factory=RecoveryConfig, description="Augmented-MCL kidnapping recovery.")
+    lineage_depth: int = Field(64, ge=1, description="Resampling generations kept for merging delayed updates.")
+    mlp_coarse_samples: int = Field(64, ge=1, description="Coarse samples per ray for the nerf-pytorch MLP backend.")
+    mlp_fine_samples: int = Field(64, ge=0, description="Fine (importance) samples per ray for the nerf-pytorch MLP backend.")
+
+
+class SearchRegion(BaseModel):
+    """Where a lost robot may be: used by global initialisation and kidnapping recovery."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    low: tuple[float, float, float] = Field(description="Minimum corner of the plausible camera positions (map units).")
+    high: tuple[float, float, float] = Field(description="Maximum corner of the plausible camera positions (map units).")
+    up: tuple[float, float, float] = Field((0.0, 1.0, 0.0), description="World axis opposite to gravity.")
+
+    def bounds(self) -> torch.Tensor:
+        """(2, 3) float64 [min, max] corners."""
+        return torch.tensor([self.low, self.high], dtype=torch.float64)
+
+
+@dataclass(frozen=True)
+class UpdateSnapshot:
+    """What an update is computed on: ``poses`` (N, 4, 4) and ``ids`` (N,) of ``generation``."""
+
+    epoch: int
+    generation: int
+    ids: torch.Tensor
+    poses: torch.Tensor
+
+
+@dataclass(frozen=True)
+class MergeReport:
+    """Outcome of merging one update result.
+
+    ``outcome`` is ``merged``, ``stale`` (snapshot from an older epoch or an untraceable generation:
+    nothing changed) or ``degenerate`` (no particle had a finite likelihood: weights and particles
+    left unchanged, no resampling).
+    """
+
+    outcome: str
+    generation: int
+    effective_sample_size: float
+    particle_count: int
+    stage: str
+    injected: int = 0
+
+
+class Localizer:
+    """The particle filter of Loc-NeRF with delayed-update merging.
+
+    Args:
+        config: filter parameters.
+        generator: CPU ``torch.Generator`` for every random draw.
+        device: where particle poses live and rendering happens.
+        dtype: dtype of particle poses (float32 default; float64 for oracles).
+        region: search region for recovery injections (required when recovery is enabled).
+    """
+
+    def __init__(
+        self,
+        config: LocalizerConfig,
+        generator: torch.Generator,
+        device: torch.device | str = "cpu",
+        dtype: torch.dtype = torch.float32,
+        region: SearchRegion | None = None,
+    ) -> None:
+        if config.recovery.enabled and region is None:
+            raise ValueError("recovery is enabled but no search region was given: pass region=SearchRegion(...)")
+        self.config = config
+        self.generator = generator
+        self.device = torch.device(device)
+        self.dtype = dtype
+        self.region = region
+        self.epoch = 0
+        self.stage = AnnealingStage.COARSE
+        self.particles: ParticleSet | None = None
+        self._lineage = Lineage(config.lineage_depth)
+        self._averages = LikelihoodAverages(config.recovery)
+        self._next_id = 0
+        self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0}
+
+    # ----------------------------------------------------------------- initialisation
+    def initialize(self, poses: torch.Tensor) -> None:
+        """Start a new epoch from explicit particle poses (N, 4, 4), equally weighted."""
+        validate_poses(poses, name="initial particle poses")
+        if poses.ndim != 3 or poses.shape[0] == 0:
+            raise ValueError(f"initial particle poses: expected shape (N>=1, 4, 4), got {tuple(poses.shape)}")
+        self.particles = ParticleSet.from_poses(poses.to(self.device, self.dtype), first_id=self._next_id)
+        self._next_id += self.particles.count
+        self.epoch += 1
+        self.stage = AnnealingStage.COARSE
+        self._lineage.clear()
+        self._averages.reset()
+
+    def initialize_inerf(self, center: torch.Tensor, translation_half_width: float = 0.1, max_angle_deg: float = 40.0) -> None:
+        """Particles spread by the iNeRF protocol around ``center`` (4, 4)."""
+        self.initialize(
+            initialization.inerf_particles(center, self.config.particles, self.generator, translation_half_width, max_angle_deg)
+        )
+
+    def initialize_global(self, center: torch.Tensor, half_width: float = 1.0, up: tuple[float, float, float] = (0.0, 1.0, 0.0)) -> None:
+        """The paper's global protocol: cube of side 2·half_width around ``center``, yaw uniform."""
+        self.initialize(initialization.global_particles(center, self.config.particles, self.generator, half_width, up))
+
+    def initialize_gaussian(self, mean: torch.Tensor, covariance: torch.Tensor) -> None:
+        """Particles ``mean · Exp(δ)``, δ ~ N(0, covariance) (6×6, rotation first)."""
+        self.initialize(initialization.gaussian_particles(mean, covariance, self.config.particles, self.generator))
+
+    def initialize_uniform(self, region: SearchRegion, tilt: torch.Tensor | None = None) -> None:
+        """Positions uniform in the region, yaw uniform about its up axis, fixed tilt (roll/pitch)."""
+        self.initialize(initialization.uniform_particles(region.bounds(), self.config.particles, self.generator, tilt, region.up))
+
+    def _require_particles(self) -> ParticleSet:
+        if self.particles is None:
+            raise RuntimeError("the localizer has no particles yet: call one of the initialize_* methods first")
+        return self.particles
+
+    # ----------------------------------------------------------------- prediction
+    def noise_sigma(self) -> torch.Tensor:
+        """(6,) current prediction-noise standard deviations (annealed)."""
+        return self.config.motion.sigma_vector(noise_scale(self.stage, self.config.annealing))
+
+    def predict(self, odometry: torch.Tensor | None = None) -> None:
+        """Eq. 4 for every particle: move by the odometry increment ``T_prev_curr`` (4, 4), add noise."""
+        particles = self._require_particles()
+        if odometry is not None:
+            validate_poses(odometry, name="odometry increment")
+            if odometry.ndim != 2:
+                raise ValueError(f"odometry increment: expected shape (4, 4), got {tuple(odometry.shape)}")
+        particles.poses = propagate_poses(particles.poses, odometry, self.noise_sigma(), self.generator)
+
+    # ----------------------------------------------------------------- delayed update
+    def _protect_convergence(self, particles: ParticleSet) -> None:
+        protection = self.config.convergence_protection
+        count = min(protection.count, particles.count)
+        if count == 0 or protection.half_width == 0:
+            return
+        mean = (particles.weights[:, None] * particles.positions).sum(dim=0)
+        chosen = torch.randperm(particles.count, generator=self.generator)[:count].to(self.device)
+        offsets = initialization.uniform(count * 3, -protection.half_width, protection.half_width, self.generator)
+        particles.poses[chosen, :3, 3] = mean + offsets.reshape(count, 3).to(self.device, self.dtype)
+
+    def snapshot(self, carry: torch.Tensor | None = None) -> UpdateSnapshot:
+        """Freeze the particles for an update (after convergence protection).
+
+        Args:
+            carry: (4, 4) increment from the last odometry stamp to the image stamp, applied
+                without noise to the snapshot's poses only; None if they coincide.
+        """
+        particles = self._require_particles()
+        self._protect_convergence(particles)
+        poses = particles.poses.clone()
+        if carry is not None:
+            validate_poses(carry, name="carry increment")
+            poses = poses @ carry.to(self.device, self.dtype)
+        return UpdateSnapshot(self.epoch, particles.generation, particles.ids.clone(), poses)
+
+    def _report(self, outcome: str, injected: int = 0) -> MergeReport:
+        particles = self._require_particles()
+        return MergeReport(
+            outcome=outcome,
+            generation=particles.generation,
+            effective_sample_size=effective_sample_size(particles.weights),
+            particle_count=particles.count,
+            stage=self.stage.value,
+            injected=injected,
+        )
+
+    def merge(self, epoch: int, generation: int, ids: torch.Tensor, log_likelihoods: torch.Tensor) -> MergeReport:
+        """Merge an update computed on snapshot ``(epoch, generation)``.
+
+        Args:
+            ids: (K,) int64 particle ids of the snapshot.
+            log_likelihoods: (K,) log-likelihoods of those particles (−inf allowed; NaN counts as −inf).
+        Returns:
+            What happened (see :class:`MergeReport`).
+        """
+        particles = self._require_particles()
+        ids = torch.as_tensor(ids, dtype=torch.int64).cpu()
+        log_likelihoods = torch.as_tensor(log_likelihoods, dtype=torch.float64).cpu()
+        if ids.ndim != 1 or log_likelihoods.shape != ids.shape:
+            raise ValueError(
+                f"update result: expected ids (K,) and log_likelihoods (K,) of equal length, got {tuple(ids.shape)} and {tuple(log_likelihoods.shape)}"
+            )
+        if epoch != self.epoch:
+            self.counters["stale"] += 1
+            logger.info("dropping an update from epoch %d (current epoch %d)", epoch, self.epoch)
+            return self._report("stale")
+        try:
+            ancestors = self._lineage.ancestors(particles.ids, particles.generation, generation)
+        except ValueError as error:
+            self.counters["stale"] += 1
+            logger.info("dropping an update: %s", error)
+            return self._report("stale")
+
+        log_likelihoods = torch.nan_to_num(log_likelihoods, nan=-torch.inf)
+        order = torch.argsort(ids)
+        per_particle = lookup(ids[order], log_likelihoods[order], ancestors, float("nan"))
+        finite = torch.isfinite(log_likelihoods)
+        if not bool(finite.any()):
+            self.counters["degenerate"] += 1
+            logger.warning("degenerate update (no finite likelihood): particles and weights kept unchanged")
+            return self._report("degenerate")
+        # Particles with no ancestor in the snapshot (injected since) get the median likelihood.
+        missing = torch.isnan(per_particle) | (ancestors == NO_ANCESTOR)
+        per_particle[missing] = log_likelihoods[finite].median()
+
+        combined = particles.log_weights.double().cpu() + per_particle
+        particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
+        log_mean_likelihood = float(torch.logsumexp(log_likelihoods, 0) - torch.log(torch.tensor(float(len(ids)))))
+        inject_fraction = self._averages.observe(log_mean_likelihood)
+        injected = self._resample(particles, inject_fraction)
+        self.counters["merged"] += 1
+        return self._report("merged", injected)
+
+    def _resample(self, particles: ParticleSet, inject_fraction: float) -> int:
+        """Resample to the stage's particle count, inject recovery particles, start a new generation."""
+        weights = particles.weights.double()
+        self.stage = stage_for_spread(weighted_position_spread(particles.positions.double(), weights), self.config.annealing)
+        target = particle_count(self.stage, self.config.particles, self.config.annealing)
+        indices = RESAMPLERS[self.config.resampler](weights, target, self.generator).to(self.device)
+        poses = particles.poses[indices]
+        parents = particles.ids[indices]
+        injected = int(round(inject_fraction * target))
+        if injected > 0:
+            tilt = estimate_from_particles(particles, self.stage.value).pose[:3, :3]
+            fresh = initialization.uniform_particles(self.region.bounds(), injected, self.generator, tilt, self.region.up)
+            replaced = torch.randperm(target, generator=self.generator)[:injected].to(self.device)
+            poses[replaced] = fresh.to(self.device, self.dtype)
+            parents[replaced] = NO_ANCESTOR
+            self.counters["injected"] += injected
+        children = torch.arange(self._next_id, self._next_id + target, dtype=torch.int64, device=self.device)
+        self._next_id += target
+        particles.generation += 1
+        self._lineage.record(particles.generation, children, parents)
+        particles.poses = poses
+        particles.ids = children
+        particles.parent_ids = parents
+        particles.log_weights = torch.full((target,), -float(torch.log(torch.tensor(float(target)))), dtype=self.dtype, device=self.device)
+        return injected
+
+    # ----------------------------------------------------------------- synchronous use
+    def update(self, image: torch.Tensor, intrinsics: PinholeIntrinsics, render_rays: RenderRays) -> MergeReport:
+        """One complete update on an image (H, W, 3) in [0, 1]: snapshot, render, merge."""
+        if image.ndim != 3 or image.shape[-1] != 3:
+            raise ValueError(f"image: expected shape (H, W, 3), got {tuple(image.shape)}")
+        if (image.shape[0], image.shape[1]) != (intrinsics.height, intrinsics.width):
+            raise ValueError(
+                f"image size {image.shape[1]}×{image.shape[0]} does not match the intrinsics {intrinsics.width}×{intrinsics.height}"
+            )
+        snap = self.snapshot()
+        config = self.config.measurement
+        pixels = sample_pixels(intrinsics.height, intrinsics.width, config.pixels, self.generator)
+        colours = observed_colours(image, pixels)
+        log_likelihoods = particle_log_likelihoods(
+            snap.poses, pixels.to(self.device), colours.to(self.device), intrinsics, render_rays, config.exponent, config.ray_chunk
+        )
+        return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods)
+
+    def estimate(self) -> PoseEstimate:
+        """The current estimate (weighted mean pose, covariance, spread, ESS)."""
+        return estimate_from_particles(self._require_particles(), self.stage.value)

@@ -1,0 +1,63 @@
+"""Rigid transforms SE(3) as 4×4 matrices: exp/log, compose, inverse, construction.
+
+Tangent vectors are ``xi = (omega, rho)``: rotation part first, then translation, as the Loc-NeRF
+paper writes its noise δ. ``se3_exp(xi) = [[exp(ω), V ρ], [0, 1]]`` with
+``V = I + b K + c K²`` (coefficients from :func:`rodrigues_coefficients`).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from locnerf.geometry.so3 import hat, rodrigues_coefficients, so3_exp, so3_log
+
+
+def make_pose(rotation: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
+    """Stack ``rotation: (..., 3, 3)`` and ``translation: (..., 3)`` into poses (..., 4, 4)."""
+    batch = torch.broadcast_shapes(rotation.shape[:-2], translation.shape[:-1])
+    pose = torch.zeros(*batch, 4, 4, dtype=rotation.dtype, device=rotation.device)
+    pose[..., :3, :3] = rotation
+    pose[..., :3, 3] = translation
+    pose[..., 3, 3] = 1.0
+    return pose
+
+
+def pose_inverse(pose: torch.Tensor) -> torch.Tensor:
+    """Inverse of rigid transforms (..., 4, 4), using ``R^T`` rather than a general inverse."""
+    rotation_t = pose[..., :3, :3].transpose(-1, -2)
+    return make_pose(rotation_t, -(rotation_t @ pose[..., :3, 3:4]).squeeze(-1))
+
+
+def _left_jacobian_inverse(omega: torch.Tensor) -> torch.Tensor:
+    """``V⁻¹ = I - K/2 + e K²`` with ``e = (1 - a/(2b))/θ²`` (series 1/12 + θ²/720 near 0)."""
+    theta = torch.linalg.vector_norm(omega, dim=-1)
+    a, b, _ = rodrigues_coefficients(theta)
+    small = theta < 1e-3
+    safe_theta = torch.where(small, torch.ones_like(theta), theta)
+    e = torch.where(small, 1.0 / 12.0 + theta * theta / 720.0, (1.0 - a / (2.0 * b)) / (safe_theta**2))
+    k = hat(omega)
+    eye = torch.eye(3, dtype=omega.dtype, device=omega.device).expand(k.shape)
+    return eye - 0.5 * k + e[..., None, None] * (k @ k)
+
+
+def se3_exp(xi: torch.Tensor) -> torch.Tensor:
+    """Exponential map: tangent vectors ``(..., 6) = (ω, ρ)`` -> poses (..., 4, 4)."""
+    omega, rho = xi[..., :3], xi[..., 3:]
+    theta = torch.linalg.vector_norm(omega, dim=-1)
+    _, b, c = rodrigues_coefficients(theta)
+    k = hat(omega)
+    eye = torch.eye(3, dtype=xi.dtype, device=xi.device).expand(k.shape)
+    v = eye + b[..., None, None] * k + c[..., None, None] * (k @ k)
+    return make_pose(so3_exp(omega), (v @ rho[..., None]).squeeze(-1))
+
+
+def se3_log(pose: torch.Tensor) -> torch.Tensor:
+    """Logarithm map: poses (..., 4, 4) -> tangent vectors ``(..., 6) = (ω, ρ)``."""
+    omega = so3_log(pose[..., :3, :3])
+    rho = (_left_jacobian_inverse(omega) @ pose[..., :3, 3:4]).squeeze(-1)
+    return torch.cat((omega, rho), dim=-1)
+
+
+def relative_pose(pose_a: torch.Tensor, pose_b: torch.Tensor) -> torch.Tensor:
+    """``T_a_b = T_world_a⁻¹ · T_world_b`` for poses (..., 4, 4)."""
+    return pose_inverse(pose_a) @ pose_b

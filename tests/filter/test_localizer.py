@@ -1,0 +1,181 @@
+"""The localizer: delayed merges by ancestor, stale results, the original's defects shown absent."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
+from locnerf.filter.annealing import AnnealingConfig
+from locnerf.filter.localizer import ConvergenceProtectionConfig
+from locnerf.filter.motion import MotionNoiseConfig
+from locnerf.filter.recovery import RecoveryConfig
+from locnerf.geometry import make_pose, rotation_error_deg, so3_exp, translation_error
+from locnerf.render import PinholeIntrinsics, render_image
+from tests.filter.analytic_field import analytic_render_rays
+
+NO_PROTECTION = ConvergenceProtectionConfig(count=0)
+
+
+def line_of_particles(count: int) -> torch.Tensor:
+    """Particles on the x axis at x = 0, 1, ..., count-1 (identity rotation), float64."""
+    return make_pose(torch.eye(3, dtype=torch.float64).expand(count, 3, 3), torch.stack([torch.arange(count, dtype=torch.float64), torch.zeros(count, dtype=torch.float64), torch.zeros(count, dtype=torch.float64)], -1))
+
+
+def make_localizer(generator, particles=8, **config) -> Localizer:
+    base = dict(particles=particles, convergence_protection=NO_PROTECTION, annealing=AnnealingConfig(enabled=False))
+    base.update(config)
+    return Localizer(LocalizerConfig(**base), generator, dtype=torch.float64)
+
+
+def test_delayed_result_lands_on_descendants_after_predictions_and_a_resample(generator):
+    still = MotionNoiseConfig(rotation_sigma=(0, 0, 0), translation_sigma=(0, 0, 0))
+    localizer = make_localizer(generator, motion=still, resampler="systematic")
+    localizer.initialize(line_of_particles(8))
+    late = localizer.snapshot()
+    # The filter keeps running: predictions, then a different update that resamples.
+    step = make_pose(torch.eye(3, dtype=torch.float64), torch.tensor([0.0, 0.1, 0.0], dtype=torch.float64))
+    for _ in range(3):
+        localizer.predict(step)
+    early = localizer.snapshot()
+    favour_three_and_five = torch.full((8,), -1e6, dtype=torch.float64)
+    favour_three_and_five[[3, 5]] = 0.0
+    localizer.merge(early.epoch, early.generation, early.ids, favour_three_and_five)
+    assert localizer.particles.generation == late.generation + 1
+    assert set(localizer.particles.positions[:, 0].tolist()) == {3.0, 5.0}  # systematic: four copies of each
+    # The late result says: only the snapshot particle at x = 5 is plausible.
+    scores = torch.full((8,), -1e6, dtype=torch.float64)
+    scores[5] = 0.0
+    report = localizer.merge(late.epoch, late.generation, late.ids, scores)
+    assert report.outcome == "merged"
+    # Every particle now descends from the one at x = 5 and kept the motion applied since.
+    assert torch.allclose(localizer.particles.positions[:, 0], torch.full((8,), 5.0, dtype=torch.float64))
+    assert torch.allclose(localizer.particles.positions[:, 1], torch.full((8,), 0.3, dtype=torch.float64))
+
+
+def test_result_ids_in_any_order_are_matched_by_id(generator):
+    localizer = make_localizer(generator, motion=MotionNoiseConfig(rotation_sigma=(0, 0, 0), translation_sigma=(0, 0, 0)))
+    localizer.initialize(line_of_particles(8))
+    snap = localizer.snapshot()
+    scores = torch.full((8,), -1e6, dtype=torch.float64)
+    scores[2] = 0.0
+    permutation = torch.randperm(8, generator=generator)
+    localizer.merge(snap.epoch, snap.generation, snap.ids[permutation], scores[permutation])
+    assert torch.allclose(localizer.particles.positions[:, 0], torch.full((8,), 2.0, dtype=torch.float64))
+
+
+def test_stale_results_are_refused_and_counted(generator):
+    localizer = make_localizer(generator, lineage_depth=2)
+    localizer.initialize(line_of_particles(8))
+    old_epoch = localizer.snapshot()
+    localizer.initialize(line_of_particles(8))
+    before = localizer.particles.poses.clone()
+    assert localizer.merge(old_epoch.epoch, old_epoch.generation, old_epoch.ids, torch.zeros(8)).outcome == "stale"
+    assert torch.equal(localizer.particles.poses, before)
+    too_old = localizer.snapshot()
+    for _ in range(3):
+        snap = localizer.snapshot()
+        localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(8))
+    assert localizer.merge(too_old.epoch, too_old.generation, too_old.ids, torch.zeros(8)).outcome == "stale"
+    assert localizer.counters["stale"] == 2
+
+
+def test_weights_are_reset_after_resampling(generator):
+    """Original defect: weights kept after resampling, so the mean paired particles with stale weights."""
+    localizer = make_localizer(generator)
+    localizer.initialize(line_of_particles(8))
+    snap = localizer.snapshot()
+    localizer.merge(snap.epoch, snap.generation, snap.ids, torch.linspace(-3, 0, 8, dtype=torch.float64))
+    weights = localizer.particles.weights
+    assert torch.allclose(weights, torch.full_like(weights, 1 / 8))
+
+
+def test_reduction_resamples_instead_of_truncating(generator):
+    """Original defect: reducing the count by keeping the first n_reduced array entries."""
+    annealing = AnnealingConfig(alpha_refine=100.0, alpha_super_refine=50.0, reduced_particles=4)
+    localizer = make_localizer(generator, particles=8, annealing=annealing)
+    localizer.initialize(line_of_particles(8))
+    snap = localizer.snapshot()
+    scores = torch.full((8,), -1e6, dtype=torch.float64)
+    scores[7] = 0.0  # the last particle, which truncation to 4 would drop
+    localizer.merge(snap.epoch, snap.generation, snap.ids, scores)
+    assert localizer.particles.count == 4
+    assert torch.allclose(localizer.particles.positions[:, 0], torch.full((4,), 7.0, dtype=torch.float64))
+    assert localizer.stage.value == "super_refine"
+
+
+def test_particle_count_and_noise_are_restored_when_the_spread_grows(generator):
+    annealing = AnnealingConfig(alpha_refine=0.5, alpha_super_refine=0.1, reduced_particles=4)
+    localizer = make_localizer(generator, particles=8, annealing=annealing)
+    localizer.initialize(line_of_particles(8) * torch.tensor(0.01, dtype=torch.float64).new_tensor(1.0))
+    tight = make_pose(torch.eye(3, dtype=torch.float64).expand(8, 3, 3), torch.zeros(8, 3, dtype=torch.float64))
+    localizer.initialize(tight)
+    snap = localizer.snapshot()
+    localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(8))
+    assert localizer.particles.count == 4 and localizer.stage.value == "super_refine"
+    assert torch.allclose(localizer.noise_sigma(), localizer.config.motion.sigma_vector() / 4)
+    localizer.particles.poses[:, 0, 3] = torch.tensor([0.0, 3.0, 6.0, 9.0], dtype=torch.float64)
+    snap = localizer.snapshot()
+    localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(4))
+    assert localizer.particles.count == 8 and localizer.stage.value == "coarse"
+    assert torch.allclose(localizer.noise_sigma(), localizer.config.motion.sigma_vector())
+
+
+def test_degenerate_update_keeps_particles_and_weights(generator):
+    localizer = make_localizer(generator)
+    localizer.initialize(line_of_particles(8))
+    before = (localizer.particles.poses.clone(), localizer.particles.log_weights.clone(), localizer.particles.generation)
+    snap = localizer.snapshot()
+    report = localizer.merge(snap.epoch, snap.generation, snap.ids, torch.full((8,), float("nan")))
+    assert report.outcome == "degenerate" and localizer.counters["degenerate"] == 1
+    assert torch.equal(localizer.particles.poses, before[0]) and torch.equal(localizer.particles.log_weights, before[1])
+    assert localizer.particles.generation == before[2]
+
+
+def test_merge_refuses_mismatched_arrays(generator):
+    localizer = make_localizer(generator)
+    localizer.initialize(line_of_particles(8))
+    snap = localizer.snapshot()
+    with pytest.raises(ValueError, match="equal length"):
+        localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(7))
+
+
+def test_recovery_injects_particles_when_the_likelihood_collapses(generator):
+    region = SearchRegion(low=(-1.0, -1.0, -1.0), high=(1.0, 1.0, 1.0))
+    localizer = Localizer(
+        LocalizerConfig(particles=100, convergence_protection=NO_PROTECTION, recovery=RecoveryConfig(enabled=True)),
+        generator,
+        dtype=torch.float64,
+        region=region,
+    )
+    localizer.initialize(line_of_particles(100) * 0 + torch.eye(4, dtype=torch.float64))
+    for _ in range(10):
+        snap = localizer.snapshot()
+        assert localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(100)).injected == 0
+    snap = localizer.snapshot()
+    report = localizer.merge(snap.epoch, snap.generation, snap.ids, torch.full((100,), -50.0))
+    assert report.injected > 0
+    assert (localizer.particles.parent_ids == -1).sum() == report.injected
+
+
+def test_recovery_needs_a_region(generator):
+    with pytest.raises(ValueError, match="search region"):
+        Localizer(LocalizerConfig(recovery=RecoveryConfig(enabled=True)), generator)
+
+
+def test_synchronous_updates_converge_on_an_analytic_field(generator):
+    camera = PinholeIntrinsics.from_fov(40, 30, math.radians(60))
+    truth = make_pose(so3_exp(torch.tensor([0.1, 0.3, -0.05], dtype=torch.float64)), torch.tensor([0.2, -0.1, 0.4], dtype=torch.float64))
+    image = render_image(analytic_render_rays, truth.float(), camera)
+    config = LocalizerConfig(particles=300, motion=MotionNoiseConfig(rotation_sigma=(0.02,) * 3, translation_sigma=(0.01,) * 3))
+    localizer = Localizer(config, generator)
+    localizer.initialize_inerf(truth, translation_half_width=0.1, max_angle_deg=20.0)
+    for _ in range(40):
+        localizer.predict()
+        localizer.update(image, camera, analytic_render_rays)
+    estimate = localizer.estimate()
+    assert translation_error(estimate.pose, truth) < 0.05
+    assert rotation_error_deg(estimate.pose, truth) < 5.0
+    assert estimate.covariance.shape == (6, 6)
