@@ -7,12 +7,11 @@ import json
 import logging
 
 import torch
-from tqdm import tqdm
 
 from locnerf.cli.map_source import open_map, target_views
 from locnerf.config import load_config, preset
 from locnerf.devices import resolve_device
-from locnerf.eval.single_image import TrialConfig, run_trial, summarize
+from locnerf.eval.single_image import TrialConfig, run_trials, summarize
 from locnerf.filter import Localizer, LocalizerConfig
 
 logger = logging.getLogger(__name__)
@@ -53,13 +52,8 @@ def run(args: argparse.Namespace) -> int:
     )
     generator = torch.Generator().manual_seed(args.seed)
     localizer = Localizer(config, generator, device=device)
-    intrinsics = radiance_map.default_intrinsics
-    results = []
     views = target_views(radiance_map, args.trials, generator)
-    for index, (truth, image) in enumerate(tqdm(views, total=args.trials, desc="trials", disable=args.json)):
-        result = run_trial(image.to(device), intrinsics, truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, trial_config)
-        logger.info("trial %d: %.4f units, %.2f deg, %.1f s", index, result.translation_error, result.rotation_error_deg, result.seconds)
-        results.append(result)
+    results = run_trials(views, radiance_map, localizer, trial_config, show_progress=not args.json, total=args.trials)
     summary = summarize(results) | {"map": args.map, "protocol": args.protocol, "seed": args.seed, "particles": config.particles, "updates": trial_config.updates, "device": str(device)}
     if args.json:
         print(json.dumps(summary, indent=2))

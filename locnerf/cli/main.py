@@ -9,6 +9,7 @@ import sys
 
 # Each module registers its subcommand(s) with ``register(subparsers)`` and sets ``func`` on them.
 SUBCOMMAND_MODULES = (
+    "locnerf.cli.demo",
     "locnerf.cli.localize",
 )
 

@@ -19,12 +19,15 @@ import math
 import statistics
 import time
 from dataclasses import dataclass, field
+from collections.abc import Iterable
 from typing import Literal
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field
+from tqdm import tqdm
 
-from locnerf.filter import Localizer, LocalizerConfig
+from locnerf.field.protocol import RadianceMap
+from locnerf.filter import Localizer
 from locnerf.filter.initialization import uniform
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
 from locnerf.render import PinholeIntrinsics, RenderRays
@@ -105,6 +108,25 @@ def run_trial(
     result.rotation_error_deg = result.history_rotation_deg[-1]
     result.forward_passes = forward_passes
     return result
+
+
+def run_trials(
+    views: Iterable[tuple[torch.Tensor, torch.Tensor]],
+    radiance_map: RadianceMap,
+    localizer: Localizer,
+    config: TrialConfig,
+    show_progress: bool = True,
+    total: int | None = None,
+) -> list[TrialResult]:
+    """Run one trial per (true pose (4, 4), image (H, W, 3)) view on a map; returns the results."""
+    results = []
+    for index, (truth, image) in enumerate(tqdm(views, total=total, desc=f"{config.protocol} trials", disable=not show_progress)):
+        result = run_trial(
+            image.to(radiance_map.device), radiance_map.default_intrinsics, truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, config
+        )
+        logger.info("trial %d: %.4f units, %.2f deg, %.1f s", index, result.translation_error, result.rotation_error_deg, result.seconds)
+        results.append(result)
+    return results
 
 
 def summarize(results: list[TrialResult]) -> dict[str, float | int]:
