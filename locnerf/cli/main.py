@@ -11,6 +11,7 @@ import sys
 SUBCOMMAND_MODULES = (
     "locnerf.cli.demo",
     "locnerf.cli.localize",
+    "locnerf.cli.bench_world",
 )
 
 

@@ -108,7 +108,7 @@ class ProceduralWorld:
     def cast(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Nearest surface along rays: origins, directions (R, 3) -> t (R,) (inf on a miss), surface id (R,)."""
         dtype, device = origins.dtype, origins.device
-        t_box, box, _ = nearest_box_hit(origins, directions, self.box_min.to(device, dtype), self.box_max.to(device, dtype))
+        t_box, box = nearest_box_hit(origins, directions, self.box_min.to(device, dtype), self.box_max.to(device, dtype))
         t_room, axis, side = room_exit_hit(origins, directions, self.room_min.to(device, dtype), self.room_max.to(device, dtype))
         use_box = t_box < t_room
         t = torch.where(use_box, t_box, t_room)
@@ -134,6 +134,8 @@ class ProceduralWorld:
 
     def is_free(self, points: torch.Tensor, clearance: float = 0.0) -> torch.Tensor:
         """(N,) bool: points (N, 3) inside the room and at least ``clearance`` away from every box."""
+        if points.ndim != 2 or points.shape[-1] != 3:
+            raise ValueError(f"points: expected shape (N, 3), got {tuple(points.shape)}")
         p = points.double().cpu()
         inside_room = ((p >= self.room_min + clearance) & (p <= self.room_max - clearance)).all(dim=-1)
         in_box = ((p[:, None] >= self.box_min - clearance) & (p[:, None] <= self.box_max + clearance)).all(dim=-1).any(dim=-1)

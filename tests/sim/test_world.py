@@ -7,6 +7,7 @@ import torch
 
 from locnerf.field.protocol import RadianceMap
 from locnerf.geometry import make_pose, so3_exp
+from locnerf.sim.benchmark import benchmark_world
 from locnerf.sim.world import ProceduralWorld, WorldConfig
 
 
@@ -94,3 +95,20 @@ def test_bad_rays_and_poses_are_refused(world):
         world.render_rays(torch.zeros(4, 2), torch.zeros(4, 2))
     with pytest.raises(ValueError, match="NaN"):
         world.render_image(torch.full((4, 4), float("nan")))
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        world.is_free(torch.zeros(3))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
+def test_cuda_render_matches_the_cpu_render(world):
+    pose = world.sample_camera_pose(torch.Generator().manual_seed(10))
+    cpu = world.render_image(pose)
+    cuda = ProceduralWorld.default("cuda").render_image(pose.cuda()).cpu()
+    assert (cpu - cuda).abs().median() < 1e-5
+
+
+def test_benchmark_reports_both_dtypes_and_refuses_zero_rays():
+    rows = benchmark_world(rays=128, repeats=1, device=torch.device("cpu"))
+    assert [row["dtype"] for row in rows] == ["float32", "float64"] and all(row["median_ms"] > 0 for row in rows)
+    with pytest.raises(ValueError, match="rays"):
+        benchmark_world(rays=0, repeats=1, device=torch.device("cpu"))
