@@ -69,16 +69,24 @@ class TrialResult:
         return self.translation_error < SUCCESS_TRANSLATION and self.rotation_error_deg < SUCCESS_ROTATION_DEG
 
 
-def initialize_for_protocol(localizer: Localizer, truth: torch.Tensor, config: TrialConfig, generator: torch.Generator) -> None:
-    """Spread the localizer's particles around ``truth`` (4, 4) by the configured protocol."""
+def initialize_for_protocol(
+    localizer: Localizer, truth: torch.Tensor, config: TrialConfig, generator: torch.Generator, offset: torch.Tensor | None = None
+) -> None:
+    """Spread the localizer's particles around ``truth`` (4, 4) by the configured protocol.
+
+    Args:
+        offset: (3,) translation offset of the start (e.g. from the original's logs); drawn from
+            the protocol's range when None.
+    """
     truth = truth.double().cpu()
+    half_width = config.translation_offset if config.protocol == "inerf" else config.global_half_width
+    if offset is None:
+        offset = uniform(3, -half_width, half_width, generator)
+    center = make_pose(truth[:3, :3], truth[:3, 3] + offset.double().cpu())
     if config.protocol == "inerf":
-        offset = uniform(3, -config.translation_offset, config.translation_offset, generator)
-        center = make_pose(truth[:3, :3], truth[:3, 3] + offset)
         localizer.initialize_inerf(center, config.translation_offset, config.max_angle_deg)
     else:
-        offset = uniform(3, -config.global_half_width, config.global_half_width, generator)
-        localizer.initialize_global(make_pose(truth[:3, :3], truth[:3, 3] + offset), config.global_half_width, config.up)
+        localizer.initialize_global(center, config.global_half_width, config.up)
 
 
 def run_trial(
@@ -89,9 +97,13 @@ def run_trial(
     samples_per_ray: int,
     localizer: Localizer,
     config: TrialConfig,
+    offset: torch.Tensor | None = None,
 ) -> TrialResult:
-    """Localize one image whose true pose is ``truth`` (4, 4); the localizer is re-initialised."""
-    initialize_for_protocol(localizer, truth, config, localizer.generator)
+    """Localize one image whose true pose is ``truth`` (4, 4); the localizer is re-initialised.
+
+    ``offset`` (3,) fixes the start's translation offset (logged starts); drawn when None.
+    """
+    initialize_for_protocol(localizer, truth, config, localizer.generator, offset)
     result = TrialResult(math.inf, math.inf, 0.0, 0)
     started = time.perf_counter()
     forward_passes = 0
