@@ -32,3 +32,26 @@ def plot_error_curves(results: list[TrialResult], path: Path, title: str) -> Pat
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
+
+
+def plot_success_against_passes(series: dict[str, tuple[list[int], list[float]]], path: Path, title: str) -> Path:
+    """Success ratio against forward passes for several methods (paper Fig. 2 style).
+
+    Args:
+        series: method name -> (forward-pass budgets, success ratio at each budget).
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure, axis = plt.subplots(figsize=(6, 4))
+    for name, (budgets, rates) in series.items():
+        axis.plot([b / 1e6 for b in budgets], rates, marker="o", markersize=3, label=name)
+    axis.set_xscale("log")
+    axis.set_xlabel("forward passes (millions, log scale)")
+    axis.set_ylabel(f"success ratio (< {SUCCESS_TRANSLATION} units and < {SUCCESS_ROTATION_DEG:g}°)")
+    axis.set_ylim(-0.02, 1.02)
+    axis.grid(True, alpha=0.3)
+    axis.legend()
+    axis.set_title(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path

@@ -1,0 +1,153 @@
+"""Single-image experiments on real posed images, side by side with the original's logged runs.
+
+A *view* is one real image with its true pose. Views come from the original Loc-NeRF's logged
+trials (same frame, same start offset: our result and theirs are on the same starts) or are drawn
+from a seed (any frame, including held-out ones that the map never saw).
+"""
+
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass
+
+import torch
+
+from locnerf.data.posed_images import PosedImages
+from locnerf.eval.paper_logs import LoggedRun, LoggedTrial
+from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialConfig, TrialResult, run_trial
+from locnerf.field.protocol import RadianceMap
+from locnerf.filter import Localizer
+from locnerf.geometry import rotation_error_deg, translation_error
+
+
+@dataclass(frozen=True)
+class View:
+    """One trial's input: a real image (H, W, 3), its true pose (4, 4) float64 and where it came from."""
+
+    frame: int
+    name: str
+    truth: torch.Tensor
+    image: torch.Tensor
+    held_out: bool
+    offset: torch.Tensor | None = None
+    logged: LoggedTrial | None = None
+
+
+def logged_views(posed: PosedImages, trials: list[LoggedTrial], held_out: set[int]) -> list[View]:
+    """Views for logged trials; ``posed`` must hold every frame (``split="all"``).
+
+    Raises:
+        ValueError: if a logged frame is missing or its logged truth disagrees with the reader's.
+    """
+    views = []
+    for trial in trials:
+        if trial.frame not in posed.indices:
+            raise ValueError(f"logged frame {trial.frame} of {trial.scene} is not among the {len(posed)} images read from {posed.source}")
+        position = posed.indices.index(trial.frame)
+        truth = posed.T_world_cam[position].double()
+        gap = float(translation_error(truth, trial.truth)) + float(rotation_error_deg(truth, trial.truth)) / 180.0
+        if gap > 1e-3:
+            raise ValueError(f"frame {trial.frame}: logged ground truth differs from the reader's pose (gap {gap:.2e}); wrong data set or normalisation?")
+        views.append(View(trial.frame, posed.names[position], truth, posed.images[position], trial.frame in held_out, trial.translation_offset, trial))
+    return views
+
+
+def seeded_views(posed: PosedImages, count: int, generator: torch.Generator, held_out: set[int]) -> list[View]:
+    """``count`` views of frames drawn uniformly (with replacement) from ``posed``."""
+    positions = torch.randint(len(posed), (count,), generator=generator).tolist()
+    return [
+        View(posed.indices[p], posed.names[p], posed.T_world_cam[p].double(), posed.images[p], posed.indices[p] in held_out)
+        for p in positions
+    ]
+
+
+def run_views(views: list[View], radiance_map: RadianceMap, posed: PosedImages, localizer: Localizer, config: TrialConfig) -> list[TrialResult]:
+    """One trial per view with the dataset's camera; logged views start at the logged offset."""
+    return [
+        run_trial(view.image.to(radiance_map.device), posed.intrinsics, view.truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, config, view.offset)
+        for view in views
+    ]
+
+
+def _final(run: LoggedRun | None, truth: torch.Tensor) -> dict[str, float | int | bool] | None:
+    if run is None:
+        return None
+    t_err, r_err = run.errors(truth)
+    passes = int(run.forward_passes[-1]) if run.forward_passes is not None else None
+    return {
+        "translation_error": float(t_err[-1]),
+        "rotation_error_deg": float(r_err[-1]),
+        "success": bool(t_err[-1] < SUCCESS_TRANSLATION and r_err[-1] < SUCCESS_ROTATION_DEG),
+        "forward_passes": passes,
+    }
+
+
+def trial_record(view: View, result: TrialResult) -> dict:
+    """JSON-ready record of one trial, with the original's logged figures for the same start."""
+    record = {
+        "frame": view.frame,
+        "name": view.name,
+        "held_out": view.held_out,
+        "start": "logged" if view.logged else "seeded",
+        "translation_error": result.translation_error,
+        "rotation_error_deg": result.rotation_error_deg,
+        "success": result.success,
+        "seconds": result.seconds,
+        "forward_passes": result.forward_passes,
+    }
+    if view.logged is not None:
+        record["original_locnerf"] = _final(view.logged.locnerf, view.truth)
+        record["original_inerf"] = _final(view.logged.inerf, view.truth)
+    return record
+
+
+def totals(records: list[dict]) -> dict:
+    """Success rate and median errors over records, overall and by subset."""
+
+    def summary(subset: list[dict]) -> dict | None:
+        if not subset:
+            return None
+        return {
+            "trials": len(subset),
+            "success_rate": sum(r["success"] for r in subset) / len(subset),
+            "median_translation_error": statistics.median(r["translation_error"] for r in subset),
+            "median_rotation_error_deg": statistics.median(r["rotation_error_deg"] for r in subset),
+            "mean_seconds_per_trial": statistics.fmean(r["seconds"] for r in subset),
+            "max_seconds_per_trial": max(r["seconds"] for r in subset),
+        }
+
+    logged = [r for r in records if r["start"] == "logged"]
+    result = {
+        "all": summary(records),
+        "held_out_views": summary([r for r in records if r["held_out"]]),
+        "training_views": summary([r for r in records if not r["held_out"]]),
+        "logged_starts": summary(logged),
+    }
+    for key in ("original_locnerf", "original_inerf"):
+        finals = [r[key] for r in logged if r.get(key)]
+        if finals:
+            result[f"{key}_on_logged_starts"] = {
+                "trials": len(finals),
+                "success_rate": sum(f["success"] for f in finals) / len(finals),
+                "median_translation_error": statistics.median(f["translation_error"] for f in finals),
+                "median_rotation_error_deg": statistics.median(f["rotation_error_deg"] for f in finals),
+            }
+    return result
+
+
+def success_by_budget(curves: list[tuple[list[int], list[float], list[float]]], budgets: list[int]) -> list[float]:
+    """Fraction of runs whose latest estimate within each forward-pass budget is a success.
+
+    Args:
+        curves: per run (cumulative forward passes, translation errors, rotation errors), aligned.
+        budgets: forward-pass budgets, ascending.
+    """
+    rates = []
+    for budget in budgets:
+        hits = 0
+        for passes, t_err, r_err in curves:
+            within = [i for i, p in enumerate(passes) if p <= budget]
+            if within and t_err[within[-1]] < SUCCESS_TRANSLATION and r_err[within[-1]] < SUCCESS_ROTATION_DEG:
+                hits += 1
+        rates.append(hits / len(curves) if curves else 0.0)
+    return rates
