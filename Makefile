@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/locnerf demo
+	$(BIN)/locnerf up --duration 40 --port 0 --plot out/demo/services.png
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -9,9 +9,15 @@ import sys
 
 # Each module registers its subcommand(s) with ``register(subparsers)`` and sets ``func`` on them.
 SUBCOMMAND_MODULES = (
-    "locnerf.cli.demo",
+    "locnerf.cli.eval",
     "locnerf.cli.localize",
     "locnerf.cli.bench_world",
+    "locnerf.cli.map",
+    "locnerf.cli.bench",
+    "locnerf.cli.run",
+    "locnerf.cli.up",
+    "locnerf.cli.echo",
+    "locnerf.cli.send",
 )
 
 

@@ -18,6 +18,7 @@ from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION,
 from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer
 from locnerf.geometry import rotation_error_deg, translation_error
+from locnerf.render.camera import PinholeIntrinsics
 
 
 @dataclass(frozen=True)
@@ -61,10 +62,10 @@ def seeded_views(posed: PosedImages, count: int, generator: torch.Generator, hel
     ]
 
 
-def run_views(views: list[View], radiance_map: RadianceMap, posed: PosedImages, localizer: Localizer, config: TrialConfig) -> list[TrialResult]:
-    """One trial per view with the dataset's camera; logged views start at the logged offset."""
+def run_views(views: list[View], radiance_map: RadianceMap, intrinsics: PinholeIntrinsics, localizer: Localizer, config: TrialConfig) -> list[TrialResult]:
+    """One trial per view seen by the camera ``intrinsics``; logged views start at the logged offset."""
     return [
-        run_trial(view.image.to(radiance_map.device), posed.intrinsics, view.truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, config, view.offset)
+        run_trial(view.image.to(radiance_map.device), intrinsics, view.truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, config, view.offset)
         for view in views
     ]
 

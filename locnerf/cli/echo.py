@@ -1,0 +1,56 @@
+"""``locnerf echo pose``: print the filter's stamped poses, with errors when ground truth is published."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from locnerf.cli.monitor import GroundTruthMatcher, pose_line
+from locnerf.cli.services_link import add_bus_arguments, open_cli_bus, transport
+from locnerf.messages import keys
+from locnerf.messages.codec import DecodeError, decode
+from locnerf.messages.schemas import PoseEstimate, PoseStamped
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("echo", help="print a topic (pose)")
+    parser.add_argument("topic", choices=["pose"], help="what to print")
+    parser.add_argument("--count", type=int, default=0, help="stop after this many poses (0: until Ctrl-C)")
+    parser.add_argument("--timeout", type=float, default=0.0, help="stop after this many seconds (0: no limit)")
+    add_bus_arguments(parser)
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    inbox = transport().Inbox(capacity=256)
+    matcher = GroundTruthMatcher()
+    bus = open_cli_bus(args.connect)
+    handles = [
+        bus.subscribe(keys.key(args.robot_id, keys.GROUND_TRUTH), lambda _k, payload: inbox.put(("truth", payload))),
+        bus.subscribe(keys.key(args.robot_id, keys.POSE), lambda _k, payload: inbox.put(("pose", payload))),
+    ]
+    deadline = time.monotonic() + args.timeout if args.timeout > 0 else float("inf")
+    printed = 0
+    try:
+        while time.monotonic() < deadline and (args.count == 0 or printed < args.count):
+            item = inbox.get(timeout=0.1)
+            if item is None:
+                continue
+            kind, payload = item
+            try:
+                if kind == "truth":
+                    matcher.add_truth(decode(payload, PoseStamped))
+                    continue
+                estimate = decode(payload, PoseEstimate)
+            except DecodeError as error:
+                print(f"bad {kind} message: {error}")
+                continue
+            print(pose_line(estimate, matcher.error(estimate)), flush=True)
+            printed += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for handle in handles:
+            handle.close()
+        bus.close()
+    return 0

@@ -1,0 +1,107 @@
+"""``locnerf eval single-image`` and ``locnerf eval global`` on a map and its real images."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+from locnerf.cli.map_source import open_map
+from locnerf.config import load_config, preset
+from locnerf.data import read_dataset
+from locnerf.devices import resolve_device
+from locnerf.eval.paper_logs import read_logged_trials
+from locnerf.eval.plots import plot_error_curves, plot_success_against_passes
+from locnerf.eval.real_data import logged_views, run_views, seeded_views, success_by_budget, totals, trial_record
+from locnerf.eval.single_image import TrialConfig
+from locnerf.filter import Localizer
+
+logger = logging.getLogger(__name__)
+
+PROTOCOLS = {"single-image": ("inerf", "llff", 100), "global": ("global", "llff_global", 150)}
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    for name, (protocol, default_preset, updates) in PROTOCOLS.items():
+        parser = subparsers.add_parser(name, help=f"{protocol} protocol on real images, beside the original's logs")
+        parser.add_argument("--map", required=True, help="map file (or 'world')")
+        parser.add_argument("--data", required=True, type=Path, help="the data set the views come from")
+        parser.add_argument("--downscale", type=int, default=None, help="image divisor when reading --data (reader default if unset)")
+        parser.add_argument("--starts", type=Path, default=None, help="folder of the original's logs: reuse their frames and starts")
+        parser.add_argument("--scene", default=None, help="scene name in the logs (default: the data folder's name)")
+        parser.add_argument("--trials", type=int, default=0, help="seeded trials in addition to the logged starts")
+        parser.add_argument("--split", default="all", help="split the seeded views are drawn from (all, train, test)")
+        parser.add_argument("--updates", type=int, default=updates, help="update steps per trial")
+        parser.add_argument("--preset", default=default_preset, help="filter preset")
+        parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
+        parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+        parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
+        parser.add_argument("--plots", type=Path, default=None, help="folder for PNG figures")
+        parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+        parser.set_defaults(func=run, protocol=protocol)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.trials < 0 or (args.trials == 0 and args.starts is None):
+        raise ValueError(f"--trials {args.trials}: expected >= 1 seeded trials, or --starts with logged ones")
+    device = resolve_device(args.device)
+    radiance_map = open_map(args.map, device)
+    pool = read_dataset(args.data, split=args.split, downscale=args.downscale)
+    generator = torch.Generator().manual_seed(args.seed)
+    views = []
+    if args.starts is not None:
+        every_frame = pool if args.split == "all" else read_dataset(args.data, split="all", downscale=args.downscale)
+        trials = read_logged_trials(args.starts, scene=args.scene or args.data.name)
+        views += logged_views(every_frame, trials, held_out_frames(args.data, "all", args.downscale))
+    if args.trials:
+        views += seeded_views(pool, args.trials, generator, held_out_frames(args.data, args.split, args.downscale))
+    config = load_config(args.config) if args.config else preset(args.preset)
+    localizer = Localizer(config, generator, device=device)
+    trial_config = TrialConfig(protocol=args.protocol, updates=args.updates, up=radiance_map.normalization.up)
+    results = []
+    for view in tqdm(views, desc=f"{args.protocol} trials", disable=args.json):
+        results += run_views([view], radiance_map, pool.intrinsics, localizer, trial_config)
+        logger.info("frame %d: %.4f units, %.2f deg, %.1f s", view.frame, results[-1].translation_error, results[-1].rotation_error_deg, results[-1].seconds)
+    records = [trial_record(v, r) for v, r in zip(views, results)]
+    report = {"protocol": args.protocol, "map": args.map, "data": str(args.data), "seed": args.seed, "updates": args.updates,
+              "particles": config.particles, "device": str(device), "totals": totals(records), "trials": records}
+    if args.plots is not None:
+        report["plots"] = write_plots(args.plots, args.protocol, views, results)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        for subset, figures in report["totals"].items():
+            if figures:
+                print(f"{subset:>34}: " + ", ".join(f"{k} {v:.4g}" for k, v in figures.items()))
+    return 0
+
+
+def held_out_frames(data: Path, split: str, downscale: int | None) -> set[int]:
+    """Frames the map did not train on: none of ``train``; otherwise those of the data set's
+    ``test`` split (every 8th image for LLFF, the test folder for NeRF-synthetic)."""
+    if split == "train":
+        return set()
+    return set(read_dataset(data, split="test", downscale=downscale).indices)
+
+
+def write_plots(folder: Path, protocol: str, views, results) -> list[str]:
+    """Error curves of our trials and success ratio against forward passes, ours vs the original's."""
+    written = [str(plot_error_curves(results, folder / f"{protocol}_error_curves.png", f"{protocol} protocol: our error against forward passes"))]
+    ours = [(r.history_forward_passes, r.history_translation, r.history_rotation_deg) for r in results]
+    theirs = []
+    for view in views:
+        run = view.logged.locnerf if view.logged is not None else None
+        if run is not None and run.forward_passes is not None:
+            t_err, r_err = run.errors(view.truth)
+            theirs.append((run.forward_passes.tolist(), t_err.tolist(), r_err.tolist()))
+    highest = max([p[-1] for p, _, _ in ours + theirs])
+    budgets = sorted({int(highest * f) for f in torch.logspace(-3, 0, 40).tolist()})
+    series = {"locnerf (ours)": (budgets, success_by_budget(ours, budgets))}
+    if theirs:
+        series["Loc-NeRF (original logs)"] = (budgets, success_by_budget(theirs, budgets))
+    written.append(str(plot_success_against_passes(series, folder / f"{protocol}_success_vs_passes.png", f"{protocol} protocol")))
+    return written

@@ -1,0 +1,117 @@
+"""``locnerf eval tracking``: follow a camera path with odometry and images, report the error over time."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import torch
+
+from locnerf.cli.map_source import WORLD, open_map
+from locnerf.config import load_config, preset
+from locnerf.data import read_nerf_synthetic
+from locnerf.devices import resolve_device
+from locnerf.eval.tracking import (
+    ConvergenceConfig,
+    StartConfig,
+    convergence_stamps,
+    error_series,
+    run_tracking,
+    search_region,
+    summarize_tracking,
+    tracking_config,
+)
+from locnerf.eval.tracking_plots import plot_tracking_errors
+from locnerf.eval.tracking_source import CameraPath, ScenarioConfig, SequencePath, WorldPath, build_scenario
+from locnerf.field.protocol import RadianceMap
+from locnerf.filter import Localizer, LocalizerConfig
+from locnerf.sim.sensors import CameraConfig, VioConfig
+from locnerf.sim.trajectory import FigureEightTrajectory
+from locnerf.sim.world import ProceduralWorld
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("tracking", help="tracking along a path with odometry, optional kidnapping (paper Fig. 5)")
+    parser.add_argument("--map", required=True, help="map file, or 'world' for the procedural world")
+    parser.add_argument("--sequence", required=True, help="'world' (figure-eight in the procedural world) or a NeRF-synthetic sequence folder")
+    parser.add_argument("--split", default="test", help="sequence folder: which transforms_<split>.json to replay")
+    parser.add_argument("--background", default="white", help="sequence folder: colour the RGBA frames are composited on (white, black)")
+    parser.add_argument("--downscale", type=int, default=1, help="sequence folder: image size divisor")
+    parser.add_argument("--speed", type=float, default=0.66, help="sequence folder: nominal camera speed, data-set units per second")
+    parser.add_argument("--duration", type=float, default=None, help="length of the run, seconds (default: one loop)")
+    parser.add_argument("--odom-rate", type=float, default=15.0, help="odometry messages per second")
+    parser.add_argument("--image-rate", type=float, default=3.0, help="images per second")
+    parser.add_argument("--drift", type=float, default=0.01, help="odometry scale drift (0.01: 1 %% of the distance travelled)")
+    parser.add_argument("--yaw-drift", type=float, default=0.2, help="odometry yaw drift, degrees per second")
+    parser.add_argument("--noise", type=float, default=2e-3, help="odometry white translation noise per message, metres per axis")
+    parser.add_argument("--rotation-noise", type=float, default=0.057, help="odometry white rotation noise per message, degrees per axis")
+    parser.add_argument("--init", choices=("global", "gaussian"), default="global", help="start: the paper's global cube, or a Gaussian around the truth")
+    parser.add_argument("--kidnap-at", type=float, default=None, help="seconds: the camera jumps half a loop ahead, unseen by the odometry")
+    parser.add_argument("--preset", default=None, help="filter preset instead of the tracking configuration (llff, llff_global, jackal)")
+    parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
+    parser.add_argument("--plots", type=Path, default=None, help="folder for the PNG figure")
+    parser.add_argument("--json", action="store_true", help="print the report and the error series as JSON")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(func=run)
+
+
+def localizer_config(args: argparse.Namespace) -> LocalizerConfig:
+    """--config, else --preset, else the tracking configuration."""
+    if args.config is not None:
+        return load_config(args.config)
+    if args.preset is not None:
+        return preset(args.preset)
+    return tracking_config()
+
+
+def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPath:
+    """The figure-eight in the world, or the sequence folder replayed at the nominal speed."""
+    if args.sequence == WORLD:
+        if not isinstance(radiance_map, ProceduralWorld):
+            raise ValueError(f"--sequence world needs --map world (got --map {args.map}): the synthetic images come from the procedural world")
+        return WorldPath(radiance_map, FigureEightTrajectory(), CameraConfig())
+    folder = Path(args.sequence)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"--sequence {folder}: no such folder (expected 'world' or a NeRF-synthetic sequence folder)")
+    frames = read_nerf_synthetic(folder, split=args.split, background=args.background, downscale=args.downscale)
+    return SequencePath(frames, args.speed, args.odom_rate)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.odom_rate <= 0 or args.image_rate <= 0:
+        raise ValueError(f"--odom-rate {args.odom_rate}, --image-rate {args.image_rate}: expected positive rates")
+    device = resolve_device(args.device)
+    radiance_map = open_map(args.map, device)
+    path = camera_path(args, radiance_map)
+    vio = VioConfig(
+        rate=args.odom_rate,
+        translation_drift=args.drift,
+        yaw_drift_rate=math.radians(args.yaw_drift),
+        translation_noise=args.noise,
+        rotation_noise=math.radians(args.rotation_noise),
+    )
+    scenario = build_scenario(
+        path,
+        ScenarioConfig(duration=args.duration, image_rate=args.image_rate, vio=vio, kidnap_at=args.kidnap_at, seed=args.seed),
+        radiance_map.normalization,
+    )
+    config = localizer_config(args)
+    region = search_region(radiance_map) if config.recovery.enabled else None
+    localizer = Localizer(config, torch.Generator().manual_seed(args.seed), device, region=region)
+    image_generator = torch.Generator().manual_seed(args.seed + 1)
+    record = run_tracking(scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet)
+    criterion = ConvergenceConfig()
+    summary = summarize_tracking(record, criterion)
+    if args.plots is not None:
+        name = "world" if args.sequence == WORLD else Path(args.sequence).name
+        figure = plot_tracking_errors(record, convergence_stamps(summary), criterion, args.plots / "tracking_error.png", f"tracking: {name}")
+        summary["plot"] = str(figure)
+    if args.json:
+        print(json.dumps({**summary, "series": error_series(record)}))
+    else:
+        print(json.dumps(summary, indent=2))
+    return 0

@@ -1,0 +1,142 @@
+"""``locnerf map build|eval|render|info``: build a map from posed images, measure it, look at it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from locnerf.data import read_dataset
+from locnerf.devices import resolve_device
+from locnerf.field.grid import GridFieldConfig
+from locnerf.field.map_file import load_map, read_map_archive, save_map
+from locnerf.field.map_info import MapInfo
+from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
+from locnerf.render.image import render_image
+from locnerf.train import BuildConfig, build_map, evaluate_map
+
+logger = logging.getLogger(__name__)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``map`` and its sub-subcommands."""
+    parser = subparsers.add_parser("map", help="build, evaluate, render and describe map files")
+    commands = parser.add_subparsers(dest="map_command", required=True)
+
+    build = commands.add_parser("build", help="build a map file from a data set (LLFF, NeRF-synthetic, nerfstudio)")
+    build.add_argument("data", help="data-set folder")
+    build.add_argument("--out", required=True, help="map file to write")
+    build.add_argument("--backend", choices=("grid", "nerf_pytorch"), default="grid", help="grid: train a grid map; nerf_pytorch: import --checkpoint")
+    build.add_argument("--checkpoint", help="nerf-pytorch .tar checkpoint (backend nerf_pytorch)")
+    build.add_argument("--minutes", type=float, default=10.0, help="training wall-time budget")
+    build.add_argument("--steps", type=int, default=BuildConfig().steps, help="most training steps")
+    build.add_argument("--voxels", type=int, default=GridFieldConfig().voxels, help="grid vertices in all")
+    build.add_argument("--downscale", type=int, help="image size divisor (default 8 for LLFF, 1 otherwise)")
+    build.add_argument("--device", default="auto", help="auto | cpu | cuda[:N]")
+    build.add_argument("--seed", type=int, default=0)
+    build.set_defaults(func=run_build)
+
+    evaluate = commands.add_parser("eval", help="PSNR/SSIM of a map against a data set's views")
+    evaluate.add_argument("map", help="map file")
+    evaluate.add_argument("data", help="data-set folder")
+    evaluate.add_argument("--split", default="test")
+    evaluate.add_argument("--downscale", type=int)
+    evaluate.add_argument("--device", default="auto")
+    evaluate.add_argument("--json", action="store_true", help="print JSON")
+    evaluate.set_defaults(func=run_eval)
+
+    render = commands.add_parser("render", help="render one view of a map to a PNG")
+    which = render.add_mutually_exclusive_group(required=True)
+    which.add_argument("--view", type=int, help="index of a reference (training) pose")
+    which.add_argument("--pose", help=".npy or text file with a 4x4 camera-to-world pose (OpenGL axes, map frame)")
+    render.add_argument("map", help="map file")
+    render.add_argument("--out", required=True, help="PNG to write")
+    render.add_argument("--device", default="auto")
+    render.set_defaults(func=run_render)
+
+    info = commands.add_parser("info", help="describe a map file")
+    info.add_argument("map", help="map file")
+    info.set_defaults(func=run_info)
+
+
+def _held_out(data: str, downscale: int | None, split: str = "test"):
+    return read_dataset(data, split=split, downscale=downscale, skip_missing=True)
+
+
+def run_build(args: argparse.Namespace) -> int:
+    device = resolve_device(args.device)
+    train = read_dataset(args.data, split="train", downscale=args.downscale)
+    if args.backend == "nerf_pytorch":
+        if not args.checkpoint:
+            raise ValueError("--backend nerf_pytorch needs --checkpoint FILE.tar")
+        info = MapInfo(train.normalization, train.intrinsics, train.T_world_cam.double(), {"source": train.source, "checkpoint": args.checkpoint})
+        radiance_map = load_nerf_pytorch_checkpoint(args.checkpoint, info, train.white_background, device)
+    else:
+        config = BuildConfig(steps=args.steps, minutes=args.minutes, seed=args.seed, field=GridFieldConfig(voxels=args.voxels))
+        radiance_map = build_map(train, config, device=device, progress=True)
+        radiance_map.metadata["config"] = config.model_dump(mode="json")
+    held_out = _held_out(args.data, args.downscale)
+    scores = evaluate_map(radiance_map.render_rays, held_out, device)
+    radiance_map.metadata.update(heldout_psnr=round(scores["psnr"], 3), heldout_ssim=round(scores["ssim"], 4), heldout_views=scores["views"])
+    save_map(radiance_map, args.out)
+    print(json.dumps({"out": str(args.out), **radiance_map.metadata}, default=str))
+    return 0
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    device = resolve_device(args.device)
+    radiance_map = load_map(args.map, device)
+    scores = evaluate_map(radiance_map.render_rays, _held_out(args.data, args.downscale, args.split), device)
+    if args.json:
+        print(json.dumps(scores))
+    else:
+        print(f"PSNR {scores['psnr']:.2f} dB  SSIM {scores['ssim']:.4f}  over {scores['views']} views")
+    return 0
+
+
+def _read_pose(path: str) -> torch.Tensor:
+    file = Path(path)
+    if not file.is_file():
+        raise FileNotFoundError(f"pose file {file}: no such file")
+    pose = np.load(file) if file.suffix == ".npy" else np.loadtxt(file)
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise ValueError(f"pose file {file}: expected a finite 4x4 matrix, got shape {pose.shape}")
+    return torch.from_numpy(pose)
+
+
+def run_render(args: argparse.Namespace) -> int:
+    device = resolve_device(args.device)
+    radiance_map = load_map(args.map, device)
+    if args.pose:
+        pose = _read_pose(args.pose)
+    else:
+        poses = radiance_map.reference_poses()
+        if not 0 <= args.view < len(poses):
+            raise ValueError(f"--view {args.view}: expected 0..{len(poses) - 1}")
+        pose = poses[args.view]
+    image = render_image(radiance_map.render_rays, pose.to(device, torch.float32), radiance_map.default_intrinsics)
+    pixels = (image.cpu().numpy() * 255.0 + 0.5).astype(np.uint8)[:, :, ::-1]
+    if not cv2.imwrite(str(args.out), pixels):
+        raise ValueError(f"--out {args.out}: cannot write a PNG there")
+    print(args.out)
+    return 0
+
+
+def run_info(args: argparse.Namespace) -> int:
+    archive = read_map_archive(args.map)
+    info = archive["info"]
+    summary = {
+        "kind": archive["kind"],
+        "version": archive["version"],
+        "normalization": info["normalization"],
+        "intrinsics": info["intrinsics"],
+        "reference_views": int(info["reference_poses"].shape[0]),
+        "metadata": info["metadata"],
+    }
+    print(json.dumps(summary, indent=2, default=str))
+    return 0

@@ -1,0 +1,73 @@
+"""The one posed-image type every dataset reader returns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from locnerf.field.protocol import MapNormalization
+from locnerf.render.camera import PinholeIntrinsics
+
+
+@dataclass(frozen=True)
+class PosedImages:
+    """Images with camera-to-world poses in the map frame and one shared pinhole camera.
+
+    Attributes:
+        images: (K, H, W, 3) float32 RGB in [0, 1].
+        T_world_cam: (K, 4, 4) float64 camera-to-world poses, OpenGL camera axes, map frame.
+        intrinsics: the (undistorted, downscaled) camera of every image.
+        near: near bound of rays in map units.
+        far: far bound of rays in map units.
+        normalization: how the map frame relates to the data set's frame (incl. the NDC flag).
+        names: K image names (file stems), in reading order.
+        scene_bounds: (2, 3) min/max corner of the region holding the scene, in the frame where
+            the field lives (map frame, or NDC space when ``normalization.ndc``).
+        white_background: the images were composited on white (RGBA data sets).
+        source: the path the images were read from, for map metadata.
+    """
+
+    images: torch.Tensor
+    T_world_cam: torch.Tensor
+    intrinsics: PinholeIntrinsics
+    near: float
+    far: float
+    normalization: MapNormalization
+    names: list[str]
+    scene_bounds: torch.Tensor
+    white_background: bool = False
+    source: str = ""
+    indices: list[int] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        count = self.images.shape[0]
+        expected_image = (count, self.intrinsics.height, self.intrinsics.width, 3)
+        if tuple(self.images.shape) != expected_image:
+            raise ValueError(f"images of shape {tuple(self.images.shape)}: expected {expected_image} for {self.source}")
+        if tuple(self.T_world_cam.shape) != (count, 4, 4):
+            raise ValueError(f"T_world_cam of shape {tuple(self.T_world_cam.shape)}: expected ({count}, 4, 4) for {self.source}")
+        if len(self.names) != count:
+            raise ValueError(f"{len(self.names)} names for {count} images in {self.source}")
+        if not self.indices:
+            object.__setattr__(self, "indices", list(range(count)))
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+    def subset(self, positions: list[int]) -> "PosedImages":
+        """The images at ``positions`` (0-based positions within this set), everything else shared."""
+        index = torch.as_tensor(positions, dtype=torch.long)
+        return PosedImages(
+            images=self.images[index],
+            T_world_cam=self.T_world_cam[index],
+            intrinsics=self.intrinsics,
+            near=self.near,
+            far=self.far,
+            normalization=self.normalization,
+            names=[self.names[i] for i in positions],
+            scene_bounds=self.scene_bounds,
+            white_background=self.white_background,
+            source=self.source,
+            indices=[self.indices[i] for i in positions],
+        )

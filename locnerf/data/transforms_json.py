@@ -1,0 +1,219 @@
+"""``transforms.json`` data sets: NeRF-synthetic (``transforms_<split>.json``) and nerfstudio.
+
+Both store OpenGL camera-to-world matrices per frame (``transform_matrix``). NeRF-synthetic gives
+one ``camera_angle_x`` and RGBA images of an object inside the cube [-1.5, 1.5]³; nerfstudio gives
+``fl_x, fl_y, cx, cy, w, h`` at the top level or per frame, and optionally OpenCV distortion
+``k1 k2 (k3 k4) p1 p2``, which is removed here so that every image is an ideal pinhole image.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from locnerf.data.image_files import read_rgb, resolve_image_path, stack_same_size
+from locnerf.data.posed_images import PosedImages
+from locnerf.field.protocol import MapNormalization
+from locnerf.render.camera import PinholeIntrinsics
+
+logger = logging.getLogger(__name__)
+
+SYNTHETIC_BOUNDS = 1.5
+SYNTHETIC_NEAR, SYNTHETIC_FAR = 2.0, 6.0
+HOLDOUT_EVERY = 8
+BACKGROUNDS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
+
+
+def _load_json(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        content = json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+    if not isinstance(content, dict) or not isinstance(content.get("frames"), list) or not content["frames"]:
+        raise ValueError(f"{path}: expected an object with a non-empty 'frames' list")
+    return content
+
+
+def _frame_pose(frame: dict[str, Any], path: Path, position: int) -> np.ndarray:
+    matrix = np.asarray(frame.get("transform_matrix"), dtype=np.float64)
+    if matrix.shape != (4, 4):
+        raise ValueError(f"{path}: frame {position} transform_matrix of shape {matrix.shape}, expected (4, 4)")
+    if not np.isfinite(matrix).all():
+        raise ValueError(f"{path}: frame {position} ({frame.get('file_path')}) has a NaN or infinite pose")
+    return matrix
+
+
+def _background(background: str | tuple[float, float, float]) -> tuple[float, float, float]:
+    if isinstance(background, str):
+        if background not in BACKGROUNDS:
+            raise ValueError(f"background {background!r}: expected one of {sorted(BACKGROUNDS)} or an RGB triple")
+        return BACKGROUNDS[background]
+    return tuple(float(c) for c in background)  # type: ignore[return-value]
+
+
+def read_nerf_synthetic(
+    folder: str | Path, split: str = "train", background: str | tuple[float, float, float] = "white", downscale: int = 1,
+    skip_missing: bool = False,
+) -> PosedImages:
+    """Read one split of a NeRF-synthetic scene.
+
+    Args:
+        folder: holds ``transforms_<split>.json`` and the images it names.
+        split: ``train``, ``val`` or ``test``.
+        background: colour the RGBA images are composited on ("white", "black" or RGB in [0, 1]).
+        downscale: integer image size divisor (area resize).
+        skip_missing: leave out frames whose image file is absent (logged) instead of refusing.
+    """
+    folder = Path(folder)
+    path = folder / f"transforms_{split}.json"
+    content = _load_json(path)
+    if "camera_angle_x" not in content:
+        raise ValueError(f"{path}: no camera_angle_x (the horizontal field of view) given")
+    frames = _present_frames(content["frames"], folder, path, skip_missing)
+    rgb = _background(background)
+    paths = [resolve_image_path(folder / frame["file_path"]) for frame in frames]
+    images = stack_same_size([read_rgb(p, downscale, rgb) for p in paths], paths)
+    height, width = images.shape[1:3]
+    intrinsics = PinholeIntrinsics.from_fov(width, height, float(content["camera_angle_x"]))
+    poses = np.stack([_frame_pose(frame, path, i) for i, frame in enumerate(frames)])
+    normalization = MapNormalization(near=SYNTHETIC_NEAR, far=SYNTHETIC_FAR)
+    return PosedImages(
+        images=torch.from_numpy(images),
+        T_world_cam=torch.from_numpy(poses),
+        intrinsics=intrinsics,
+        near=SYNTHETIC_NEAR,
+        far=SYNTHETIC_FAR,
+        normalization=normalization,
+        names=[p.stem for p in paths],
+        scene_bounds=torch.tensor([[-SYNTHETIC_BOUNDS] * 3, [SYNTHETIC_BOUNDS] * 3], dtype=torch.float64),
+        white_background=rgb == (1.0, 1.0, 1.0),
+        source=str(folder),
+    )
+
+
+def _present_frames(frames: list[dict[str, Any]], folder: Path, path: Path, skip_missing: bool) -> list[dict[str, Any]]:
+    if not skip_missing:
+        return frames
+    present = []
+    for frame in frames:
+        try:
+            resolve_image_path(folder / frame["file_path"])
+            present.append(frame)
+        except FileNotFoundError:
+            continue
+    if not present:
+        raise FileNotFoundError(f"{path}: none of the {len(frames)} images it names exists")
+    if len(present) < len(frames):
+        logger.warning("%s: %d of %d images are missing and left out", path, len(frames) - len(present), len(frames))
+    return present
+
+
+def _frame_camera(content: dict[str, Any], frame: dict[str, Any], path: Path) -> tuple[PinholeIntrinsics, np.ndarray]:
+    """Intrinsics and OpenCV distortion (k1, k2, p1, p2, k3, k4) of one frame (frame keys override shared ones)."""
+
+    def value(key: str) -> Any:
+        return frame.get(key, content.get(key))
+
+    width, height = value("w"), value("h")
+    if width is None or height is None:
+        raise ValueError(f"{path}: frame {frame.get('file_path')} has no image size w, h")
+    if value("fl_x") is not None:
+        fx = float(value("fl_x"))
+        fy = float(value("fl_y") if value("fl_y") is not None else fx)
+    elif value("camera_angle_x") is not None:
+        fx = fy = 0.5 * float(width) / math.tan(0.5 * float(value("camera_angle_x")))
+    else:
+        raise ValueError(f"{path}: frame {frame.get('file_path')} has no intrinsics (fl_x/fl_y or camera_angle_x)")
+    cx = float(value("cx") if value("cx") is not None else width / 2.0)
+    cy = float(value("cy") if value("cy") is not None else height / 2.0)
+    intrinsics = PinholeIntrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=int(width), height=int(height))
+    distortion = np.array([float(value(k) or 0.0) for k in ("k1", "k2", "p1", "p2", "k3", "k4")])
+    return intrinsics, distortion
+
+
+def _undistort(image: np.ndarray, intrinsics: PinholeIntrinsics, distortion: np.ndarray) -> np.ndarray:
+    """The ideal pinhole image with the same intrinsics (OpenCV radial-tangential model)."""
+    if not distortion.any():
+        return image
+    coefficients = distortion[[0, 1, 2, 3, 4]] if not distortion[5] else np.concatenate([distortion[:5], [distortion[5], 0.0, 0.0]])
+    matrix = intrinsics.matrix().numpy()
+    return cv2.undistort(image, matrix, coefficients, None, matrix)
+
+
+def read_nerfstudio(path: str | Path, downscale: int = 1, split: str = "all", holdout_every: int = HOLDOUT_EVERY,
+                    background: str | tuple[float, float, float] = "white") -> PosedImages:
+    """Read a nerfstudio ``transforms.json`` (or the folder holding it).
+
+    All frames must share one camera after undistortion and downscaling. The scene bounds are the
+    box of the camera centres, grown by half its size (nerfstudio scenes are captured from inside
+    or around the region of interest); ``near``/``far`` are 0.05 and the box diagonal.
+
+    Args:
+        path: ``transforms.json`` or its folder.
+        downscale: integer image size divisor.
+        split: ``all``, ``train`` or ``test`` (every ``holdout_every``-th frame held out).
+        background: colour for RGBA images.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "transforms.json"
+    content = _load_json(path)
+    frames = content["frames"]
+    positions = _split(len(frames), split, holdout_every)
+    cameras = [_frame_camera(content, frames[i], path) for i in positions]
+    first = cameras[0][0]
+    for (camera, _), i in zip(cameras, positions):
+        if camera != first:
+            raise ValueError(f"{path}: frame {frames[i].get('file_path')} has camera {camera}, expected one shared camera {first}")
+    paths = [resolve_image_path(path.parent / frames[i]["file_path"]) for i in positions]
+    rgb = _background(background)
+    raw = [read_rgb(p, 1.0, rgb) for p in paths]
+    for image, image_path in zip(raw, paths):
+        if image.shape[:2] != (first.height, first.width):
+            raise ValueError(f"image {image_path} is {image.shape[1]}x{image.shape[0]}: expected {first.width}x{first.height} from {path}")
+    undistorted = [_undistort(image, camera, distortion) for image, (camera, distortion) in zip(raw, cameras)]
+    if downscale != 1:
+        size = (max(1, round(first.width / downscale)), max(1, round(first.height / downscale)))
+        undistorted = [cv2.resize(image, size, interpolation=cv2.INTER_AREA) for image in undistorted]
+    images = stack_same_size(undistorted, paths)
+    intrinsics = first.scaled(images.shape[2] / first.width)
+    poses = np.stack([_frame_pose(frames[i], path, i) for i in positions])
+    centres = poses[:, :3, 3]
+    low, high = centres.min(0), centres.max(0)
+    margin = 0.5 * (high - low).max() + 1e-3
+    bounds = torch.tensor(np.stack([low - margin, high + margin]), dtype=torch.float64)
+    far = float(np.linalg.norm(bounds[1] - bounds[0]))
+    normalization = MapNormalization(near=0.05, far=far)
+    return PosedImages(
+        images=torch.from_numpy(images),
+        T_world_cam=torch.from_numpy(poses),
+        intrinsics=intrinsics,
+        near=0.05,
+        far=far,
+        normalization=normalization,
+        names=[p.stem for p in paths],
+        scene_bounds=bounds,
+        white_background=rgb == (1.0, 1.0, 1.0),
+        source=str(path),
+        indices=positions,
+    )
+
+
+def _split(count: int, split: str, holdout_every: int) -> list[int]:
+    held_out = set(range(0, count, holdout_every))
+    if split == "all":
+        return list(range(count))
+    if split == "test":
+        return sorted(held_out)
+    if split == "train":
+        return [i for i in range(count) if i not in held_out]
+    raise ValueError(f"split {split!r}: expected all, train or test for a nerfstudio transforms.json")

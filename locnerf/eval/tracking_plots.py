@@ -1,0 +1,46 @@
+"""Tracking error over time (paper Fig. 5 style), written as a PNG file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
+
+from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord  # noqa: E402
+
+
+def plot_tracking_errors(
+    record: TrackingRecord, converged_at: list[float], criterion: ConvergenceConfig, path: Path, title: str
+) -> Path:
+    """Translation and rotation error against time, with convergence and the kidnapping marked.
+
+    Args:
+        converged_at: stamps (seconds) at which the filter converged / recovered.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    stamps = record.stamps.tolist()
+    figure, (ax_t, ax_r) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    panels = (
+        (ax_t, record.translation_error.tolist(), criterion.translation, "translation error (map units)"),
+        (ax_r, record.rotation_error_deg.tolist(), criterion.rotation_deg, "rotation error (deg)"),
+    )
+    for axis, errors, threshold, label in panels:
+        axis.plot(stamps, errors, linewidth=1.2, label="estimate")
+        axis.axhline(threshold, color="k", linestyle="--", linewidth=1, label="convergence threshold")
+        for index, stamp in enumerate(converged_at):
+            axis.axvline(stamp, color="tab:green", linewidth=1, label="converged" if index == 0 else None)
+        if record.kidnap_tick is not None:
+            axis.axvline(stamps[record.kidnap_tick], color="tab:red", linewidth=1.5, label="kidnapping")
+        axis.set_yscale("log")
+        axis.set_ylabel(label)
+        axis.grid(True, alpha=0.3)
+    ax_t.legend(loc="upper right", fontsize=8)
+    ax_r.set_xlabel("time (s)")
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path

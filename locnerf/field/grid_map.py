@@ -1,0 +1,79 @@
+"""The default map backend: a :class:`GridField` plus its :class:`MapInfo`, as a RadianceMap."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from locnerf.field.grid import GridField, GridFieldConfig
+from locnerf.field.map_info import MapInfo
+from locnerf.field.protocol import MapNormalization
+from locnerf.render.camera import PinholeIntrinsics
+
+GRID_KIND = "grid"
+
+
+class GridMap:
+    """Renders world-frame rays with the grid field (warping them to NDC first for NDC maps)."""
+
+    kind = GRID_KIND
+
+    def __init__(self, field: GridField, info: MapInfo) -> None:
+        self.field = field
+        self.info = info
+
+    @property
+    def samples_per_ray(self) -> int:
+        """Samples a ray crossing the whole box would take (an upper bound: empty space is skipped)."""
+        extent = (self.field.box[1] - self.field.box[0]).norm()
+        return int(extent / (self.field.voxel_size * self.field.config.step_ratio)) + 1
+
+    @property
+    def device(self) -> torch.device:
+        return self.field.grid.device
+
+    @property
+    def normalization(self) -> MapNormalization:
+        return self.info.normalization
+
+    @property
+    def default_intrinsics(self) -> PinholeIntrinsics:
+        return self.info.intrinsics
+
+    @property
+    def metadata(self) -> dict[str, Any]:
+        """Provenance and training figures."""
+        return self.info.metadata
+
+    def camera_bounds(self) -> torch.Tensor:
+        return self.info.camera_bounds()
+
+    def reference_poses(self) -> torch.Tensor:
+        """(K, 4, 4) float64 camera-to-world poses of the images the map was built from."""
+        return self.info.reference_poses
+
+    def render_rays(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+        """rgb (R, 3) in [0, 1] of world-frame rays: origins (R, 3), directions (R, 3)."""
+        origins = origins.to(self.device, torch.float32)
+        directions = directions.to(self.device, torch.float32)
+        field_origins, field_directions = self.info.field_rays(origins, directions)
+        return self.field.render(field_origins, field_directions, directions)
+
+    def state(self) -> dict[str, Any]:
+        """Weights and shape for the map file."""
+        return {
+            "config": self.field.config.model_dump(mode="json"),
+            "box": self.field.box.detach().cpu().clone(),
+            "background": self.field.background.cpu().tolist() if self.field.has_background else None,
+            "resolution": list(self.field.resolution),
+            "weights": {k: v.detach().cpu().clone() for k, v in self.field.state_dict().items()},
+        }
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any], info: MapInfo, device: torch.device) -> "GridMap":
+        """Inverse of :meth:`state`, on ``device``."""
+        field = GridField(state["box"], GridFieldConfig.model_validate(state["config"]), state["background"])
+        field.resize(tuple(state["resolution"]))
+        field.load_state_dict(state["weights"])
+        return cls(field.to(device).eval(), info)

@@ -1,0 +1,222 @@
+"""Wire schemas: one pydantic model per message type, all frozen, all fields documented.
+
+Poses on the wire are metric 4×4 matrices (row-major nested lists) in the map's world frame
+(OpenGL camera axes, as everywhere in locnerf). Update requests and results are the exception:
+they carry the filter's particles in map units, since worker and filter share one map.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from locnerf.render.camera import PinholeIntrinsics
+
+Matrix = list[list[float]]
+
+
+def _check_matrix(value: Matrix, rows: int, cols: int, name: str) -> Matrix:
+    if len(value) != rows or any(len(row) != cols for row in value):
+        shape = (len(value), len(value[0]) if value else 0)
+        raise ValueError(f"{name}: expected a {rows}×{cols} matrix, got shape {shape}")
+    if not all(math.isfinite(x) for row in value for x in row):
+        raise ValueError(f"{name}: expected finite entries, got {value}")
+    return value
+
+
+def _check_pose(value: Matrix, name: str) -> Matrix:
+    _check_matrix(value, 4, 4, name)
+    if any(abs(a - b) > 1e-9 for a, b in zip(value[3], (0.0, 0.0, 0.0, 1.0))):
+        raise ValueError(f"{name}: expected last row [0, 0, 0, 1], got {value[3]}")
+    return value
+
+
+def _check_covariance(value: Matrix, name: str) -> Matrix:
+    """6×6, finite, symmetric, positive semi-definite (checked with a Cholesky of cov + εI)."""
+    _check_matrix(value, 6, 6, name)
+    matrix = torch.tensor(value, dtype=torch.float64)
+    if not torch.allclose(matrix, matrix.T, atol=1e-9 * (1 + float(matrix.abs().max()))):
+        raise ValueError(f"{name}: expected a symmetric matrix")
+    jitter = 1e-12 * (1 + float(matrix.diagonal().abs().max()))
+    if torch.linalg.cholesky_ex(matrix + jitter * torch.eye(6, dtype=torch.float64)).info != 0:
+        raise ValueError(f"{name}: expected a positive semi-definite matrix, eigenvalues {torch.linalg.eigvalsh(matrix).tolist()}")
+    return value
+
+
+class _Wire(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class Stamped(_Wire):
+    """Base of time-stamped messages."""
+
+    stamp: float = Field(description="Time of the measurement or state, seconds (sensor clock).")
+    frame_id: str = Field("map", description="Frame the pose or data refer to.")
+
+    @field_validator("stamp")
+    @classmethod
+    def _finite_stamp(cls, value: float) -> float:
+        if not math.isfinite(value):
+            raise ValueError(f"stamp={value}: expected a finite number of seconds")
+        return value
+
+
+class ImageHeader(Stamped):
+    """Header of an image frame; the pixels follow as raw bytes (see :mod:`.codec`)."""
+
+    encoding: str = Field(description="Pixel layout of the payload: rgb8 or bgr8 (row-major, H×W×3 uint8).")
+    width: int = Field(gt=0, description="Image width, pixels.")
+    height: int = Field(gt=0, description="Image height, pixels.")
+    intrinsics: PinholeIntrinsics = Field(description="Camera intrinsics of this frame (OpenCV pixel-centre convention).")
+
+    @model_validator(mode="after")
+    def _size_matches_intrinsics(self) -> "ImageHeader":
+        if (self.width, self.height) != (self.intrinsics.width, self.intrinsics.height):
+            raise ValueError(
+                f"image size {self.width}×{self.height} does not match the intrinsics {self.intrinsics.width}×{self.intrinsics.height}"
+            )
+        return self
+
+
+class Odometry(Stamped):
+    """Stamped VIO output: the body pose in the odometry frame (metres)."""
+
+    T_odom_body: Matrix = Field(description="4×4 body-to-odometry-frame pose, metres.")
+    covariance: Matrix | None = Field(None, description="Optional 6×6 covariance of the pose, tangent (rotation, translation).")
+
+    @field_validator("T_odom_body")
+    @classmethod
+    def _pose(cls, value: Matrix) -> Matrix:
+        return _check_pose(value, "T_odom_body")
+
+    @field_validator("covariance")
+    @classmethod
+    def _covariance(cls, value: Matrix | None) -> Matrix | None:
+        return None if value is None else _check_covariance(value, "covariance")
+
+
+class PoseStamped(Stamped):
+    """A metric camera pose in the map's world frame (used for ground truth)."""
+
+    T_world_cam: Matrix = Field(description="4×4 camera-to-world pose, metres, OpenGL camera axes.")
+
+    @field_validator("T_world_cam")
+    @classmethod
+    def _pose(cls, value: Matrix) -> Matrix:
+        return _check_pose(value, "T_world_cam")
+
+
+class PoseEstimate(PoseStamped):
+    """The filter's estimate, published at the odometry rate."""
+
+    covariance: Matrix = Field(description="6×6 covariance in the tangent space of the mean, (rotation, translation), metric.")
+    particle_count: int = Field(ge=0, description="Particles in the filter.")
+    spread: float = Field(ge=0, description="Weighted spread of particle positions, metres.")
+    effective_sample_size: float = Field(ge=0, description="Effective sample size of the weights.")
+    mode: str = Field(description="Annealing stage of the filter (coarse, refine, super_refine).")
+    epoch: int = Field(ge=0, description="Initialisation epoch of the filter.")
+
+    @field_validator("covariance")
+    @classmethod
+    def _covariance(cls, value: Matrix) -> Matrix:
+        return _check_covariance(value, "covariance")
+
+
+class ParticleCloud(Stamped):
+    """Particle positions and weights (metres, map's world frame), at a lower rate than the pose."""
+
+    positions: list[list[float]] = Field(description="(N, 3) particle positions, metres.")
+    weights: list[float] = Field(description="(N,) normalised particle weights.")
+
+    @model_validator(mode="after")
+    def _lengths(self) -> "ParticleCloud":
+        if len(self.positions) != len(self.weights) or any(len(p) != 3 for p in self.positions):
+            raise ValueError(f"particle cloud: expected positions (N, 3) and weights (N,), got {len(self.positions)} and {len(self.weights)}")
+        return self
+
+
+class FilterStatus(Stamped):
+    """Health of the filter loop."""
+
+    state: str = Field(description="waiting_for_initialisation or running.")
+    rates_hz: dict[str, float] = Field(description="Measured rates: odometry, pose, image, update.")
+    update_latency_s: float | None = Field(description="Mean time from update request to merge over the last updates, seconds.")
+    in_flight: int = Field(ge=0, description="Update shards sent and not yet answered.")
+    workers: list[str] = Field(description="Ids of the live NeRF workers.")
+    counters: dict[str, int] = Field(description="Counts: updates merged, stale, timed out, retried, dropped images, bad messages by kind.")
+
+
+class UpdateRequest(_Wire):
+    """One shard of an update: render ``pixels`` from every pose and compare with ``observed_rgb``."""
+
+    request_id: str = Field(description="Id shared by all shards of one update.")
+    shard: int = Field(ge=0, description="Index of this shard within the update.")
+    epoch: int = Field(ge=0, description="Filter epoch of the snapshot.")
+    generation: int = Field(ge=0, description="Particle generation of the snapshot.")
+    ids: list[int] = Field(description="(K,) particle ids.")
+    poses: list[list[float]] = Field(description="(K, 16) row-major particle poses, map units.")
+    pixels: list[list[float]] = Field(description="(M, 2) pixel coordinates (u, v).")
+    observed_rgb: list[list[float]] = Field(description="(M, 3) observed colours in [0, 1].")
+    intrinsics: PinholeIntrinsics = Field(description="The observing camera.")
+    exponent: float = Field(4.0, gt=0, description="γ of the likelihood (M / SSE)^γ.")
+
+    @model_validator(mode="after")
+    def _shapes(self) -> "UpdateRequest":
+        if len(self.poses) != len(self.ids) or any(len(p) != 16 for p in self.poses):
+            raise ValueError(f"update request: expected poses (K, 16) for K={len(self.ids)} ids")
+        if len(self.pixels) != len(self.observed_rgb) or any(len(p) != 2 for p in self.pixels) or any(len(c) != 3 for c in self.observed_rgb):
+            raise ValueError("update request: expected pixels (M, 2) and observed_rgb (M, 3) of equal length")
+        return self
+
+
+class UpdateResult(_Wire):
+    """Per-particle log-likelihoods of one shard."""
+
+    request_id: str = Field(description="Id of the update this shard belongs to.")
+    shard: int = Field(ge=0, description="Index of the shard.")
+    worker_id: str = Field(description="Worker that computed it.")
+    epoch: int = Field(ge=0, description="Filter epoch of the snapshot (copied from the request).")
+    generation: int = Field(ge=0, description="Particle generation of the snapshot (copied from the request).")
+    ids: list[int] = Field(description="(K,) particle ids.")
+    log_likelihoods: list[float] = Field(description="(K,) log-likelihoods (−inf allowed).")
+    compute_seconds: float = Field(ge=0, description="Worker time spent on the shard.")
+
+    @model_validator(mode="after")
+    def _lengths(self) -> "UpdateResult":
+        if len(self.ids) != len(self.log_likelihoods):
+            raise ValueError(f"update result: {len(self.ids)} ids but {len(self.log_likelihoods)} log-likelihoods")
+        return self
+
+
+class InitialPoseCommand(PoseStamped):
+    """Re-initialise the filter around a metric pose with a 6×6 covariance (rotation, translation)."""
+
+    covariance: Matrix = Field(description="6×6 covariance of the initial pose, tangent (rotation rad², translation m²).")
+
+    @field_validator("covariance")
+    @classmethod
+    def _covariance(cls, value: Matrix) -> Matrix:
+        return _check_covariance(value, "covariance")
+
+
+class GlobalLocalizationCommand(Stamped):
+    """Re-initialise the filter over the whole map (positions uniform, yaw uniform)."""
+
+
+WIRE_TYPES: dict[str, type[_Wire]] = {
+    model.__name__: model
+    for model in (
+        ImageHeader,
+        Odometry,
+        PoseStamped,
+        PoseEstimate,
+        ParticleCloud,
+        FilterStatus,
+        UpdateRequest,
+        UpdateResult,
+        InitialPoseCommand,
+        GlobalLocalizationCommand,
+    )
+}

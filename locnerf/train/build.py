@@ -1,0 +1,141 @@
+"""Building a grid map from posed images: Adam on the photometric loss of random ray batches.
+
+Coarse to fine: the grid starts with 1/8 of its vertices and is trilinearly upsampled once; the
+occupancy grid is refreshed periodically so that empty space stops costing samples. Training stops
+after ``steps`` steps or ``minutes`` of wall time, whichever comes first; the learning rates decay
+exponentially with the progress fraction.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+from tqdm import tqdm
+
+from locnerf.data.posed_images import PosedImages
+from locnerf.field.grid import GridField, GridFieldConfig, grid_shape_for_box
+from locnerf.field.grid_map import GridMap
+from locnerf.field.map_info import MapInfo
+from locnerf.render.image import render_image
+from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
+from locnerf.train.metrics import psnr, psnr_from_mse, ssim
+
+logger = logging.getLogger(__name__)
+
+
+class BuildConfig(BaseModel):
+    """How to build a grid map."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    field: GridFieldConfig = Field(default_factory=GridFieldConfig, description="Shape of the grid field.")
+    steps: int = Field(20000, gt=0, description="Most optimisation steps.")
+    minutes: float | None = Field(None, gt=0, description="Wall-time budget; None trains for exactly `steps` steps (reproducible).")
+    batch_rays: int = Field(4096, gt=0, description="Rays per optimisation step.")
+    grid_learning_rate: float = Field(0.1, gt=0, description="Initial Adam learning rate of the grid.")
+    decoder_learning_rate: float = Field(2e-3, gt=0, description="Initial Adam learning rate of the view decoder.")
+    final_learning_rate_factor: float = Field(0.1, gt=0, le=1, description="Learning rates at the end relative to the start.")
+    coarse_fraction: float = Field(0.25, ge=0, lt=1, description="Progress fraction trained at the coarse (1/8 vertices) grid.")
+    occupancy_warmup: int = Field(100, ge=0, description="Steps before empty-space skipping starts.")
+    occupancy_every: int = Field(50, gt=0, description="Steps between occupancy-grid refreshes.")
+    seed: int = Field(0, description="Seed of ray batches and sample jitter.")
+
+
+def training_rays(images: PosedImages, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Every pixel ray of a posed-image set: origins (N, 3), directions (N, 3), colours (N, 3), float32."""
+    pixels = pixel_grid(images.intrinsics)
+    origins, directions = rays_from_poses_and_pixels(images.T_world_cam.double(), pixels.double(), images.intrinsics)
+    return (
+        origins.reshape(-1, 3).float().to(device),
+        directions.reshape(-1, 3).float().to(device),
+        images.images.reshape(-1, 3).float().to(device),
+    )
+
+
+def _optimizer(field: GridField, config: BuildConfig) -> torch.optim.Optimizer:
+    return torch.optim.Adam(
+        [
+            {"params": [field.grid], "lr": config.grid_learning_rate, "name": "grid"},
+            {"params": field.decoder.parameters(), "lr": config.decoder_learning_rate, "name": "decoder"},
+        ],
+        betas=(0.9, 0.99),
+        fused=True,
+        eps=1e-15,  # gradients of sparsely hit voxels are tiny; a larger eps would freeze them
+    )
+
+
+def build_map(images: PosedImages, config: BuildConfig, device: torch.device | str = "cpu", progress: bool = False) -> GridMap:
+    """Train a grid map on ``images`` (the training split).
+
+    Returns:
+        the map; its metadata holds ``steps``, ``seconds``, ``train_psnr`` (last batches) and ``source``.
+    """
+    device = torch.device(device)
+    generator = torch.Generator(device=device).manual_seed(config.seed)
+    torch.manual_seed(config.seed)
+    info = MapInfo(images.normalization, images.intrinsics, images.T_world_cam.double().clone(), {"source": images.source})
+    origins, directions, colours = training_rays(images, device)
+    field_origins, field_directions = info.field_rays(origins, directions)
+    background = (1.0, 1.0, 1.0) if images.white_background else None
+    field = GridField(images.scene_bounds.to(device), config.field, background).to(device)
+    fine_resolution = field.resolution
+    if config.coarse_fraction > 0:
+        field.resize(grid_shape_for_box(images.scene_bounds, config.field.voxels // 8))
+    optimizer = _optimizer(field, config)
+    start = time.monotonic()
+    budget = config.minutes * 60.0 if config.minutes is not None else None
+    bar = tqdm(total=config.steps, disable=not progress, desc="build", unit="step")
+    smoothed_mse = None
+    step = 0
+    while step < config.steps:
+        elapsed = time.monotonic() - start
+        fraction = max(step / config.steps, elapsed / budget if budget else 0.0)
+        if fraction >= 1.0:
+            break
+        if field.resolution != fine_resolution and fraction >= config.coarse_fraction:
+            field.resize(fine_resolution)
+            optimizer = _optimizer(field, config)
+        decay = config.final_learning_rate_factor**fraction
+        for group in optimizer.param_groups:
+            group["lr"] = (config.grid_learning_rate if group["name"] == "grid" else config.decoder_learning_rate) * decay
+        if step >= config.occupancy_warmup and step % config.occupancy_every == 0:
+            field.update_occupancy()
+        batch = torch.randint(0, len(origins), (config.batch_rays,), generator=generator, device=device)
+        predicted = field.render_training(field_origins[batch], field_directions[batch], directions[batch], generator)
+        loss = torch.mean((predicted - colours[batch]) ** 2)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        step += 1
+        mse = float(loss)
+        smoothed_mse = mse if smoothed_mse is None else 0.95 * smoothed_mse + 0.05 * mse
+        bar.update(1)
+        if step % 20 == 0:
+            bar.set_postfix(loss=f"{mse:.5f}", psnr=f"{psnr_from_mse(smoothed_mse):.2f}")
+    bar.close()
+    field.update_occupancy()
+    seconds = time.monotonic() - start
+    info.metadata.update(steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution))
+    logger.info("built a grid map in %d steps, %.0f s", step, seconds)
+    return GridMap(field.eval(), info)
+
+
+def evaluate_map(render_rays, views: PosedImages, device: torch.device | str = "cpu") -> dict[str, float]:
+    """Mean PSNR and SSIM of the map's renders of ``views`` against their images.
+
+    Args:
+        render_rays: the map's ``render_rays``.
+        views: held-out posed images (same frame as the map).
+    Returns:
+        ``{"psnr": dB, "ssim": ..., "views": count}``.
+    """
+    psnrs, ssims = [], []
+    for index in range(len(views)):
+        pose = views.T_world_cam[index].to(device, torch.float32)
+        rendered = render_image(render_rays, pose, views.intrinsics).cpu()
+        psnrs.append(psnr(rendered, views.images[index]))
+        ssims.append(ssim(rendered, views.images[index]))
+    return {"psnr": sum(psnrs) / len(psnrs), "ssim": sum(ssims) / len(ssims), "views": len(psnrs)}

@@ -1,0 +1,129 @@
+"""``python -m services.filter_loop``: the filter process (one thread owns the filter state)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+import time
+from pathlib import Path
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from locnerf.cli.map_source import open_map
+from locnerf.config import PRESETS, load_config, preset
+from locnerf.devices import resolve_device
+from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
+from locnerf.messages import keys
+from services.filter_loop.service import FilterLoop, FilterLoopConfig
+from services.runtime import limit_torch_threads, load_service_config, stop_on_signals
+from services.transport import Bus, Inbox, LatestSlot, TransportConfig, open_bus
+
+logger = logging.getLogger(__name__)
+
+
+class FilterProcessConfig(BaseModel):
+    """A filter-loop process."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    robot_id: str = Field("robot", description="Robot whose keys the filter uses.")
+    map: str = Field("world", description="Map whose frame, scale and bounds the filter uses: 'world' or a map file.")
+    device: str = Field("auto", description="auto, cpu, cuda or cuda:N, for the particles.")
+    localizer: str = Field("llff", description="Localizer preset name (llff, llff_global, jackal) or a localizer TOML file.")
+    seed: int = Field(0, description="Seed of every random draw of the filter.")
+    loop: FilterLoopConfig = Field(default_factory=FilterLoopConfig, description="Timing and fault handling.")
+    torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
+    transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
+
+
+def localizer_config(spec: str) -> LocalizerConfig:
+    """A preset name or the path of a localizer TOML file."""
+    return preset(spec) if spec in PRESETS else load_config(spec)
+
+
+def build_loop(config: FilterProcessConfig) -> FilterLoop:
+    """The filter loop for ``config`` (loads the map for its frame and bounds)."""
+    device = resolve_device(config.device)
+    radiance_map = open_map(config.map, device)
+    normalization = radiance_map.normalization
+    bounds = radiance_map.camera_bounds()
+    region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()), up=normalization.up)
+    generator = torch.Generator().manual_seed(config.seed)
+    localizer = Localizer(localizer_config(config.localizer), generator, device=device, region=region)
+    return FilterLoop(config.robot_id, localizer, normalization, region, config.loop, time.monotonic)
+
+
+def serve(loop: FilterLoop, bus: Bus, stop: threading.Event) -> None:
+    """Run the loop until ``stop``: callbacks only enqueue, this thread does all the work."""
+    inbox: Inbox[tuple[str, str, bytes | bool]] = Inbox(capacity=1024)
+    images: LatestSlot[bytes] = LatestSlot()
+    robot = loop.robot_id
+    handlers = {
+        "odometry": lambda _key, payload: loop.handle_odometry(payload),
+        "result": lambda _key, payload: loop.handle_result(payload),
+        "initial_pose": lambda _key, payload: loop.handle_initial_pose(payload),
+        "global_localization": lambda _key, payload: loop.handle_global_localization(payload),
+        "worker": loop.worker_changed,
+    }
+    topics = {
+        "odometry": keys.ODOMETRY,
+        "result": keys.UPDATE_RESULT,
+        "initial_pose": keys.INITIAL_POSE,
+        "global_localization": keys.GLOBAL_LOCALIZATION,
+    }
+    handles = [bus.subscribe(keys.key(robot, topic), lambda key, payload, kind=kind: inbox.put((kind, key, payload))) for kind, topic in topics.items()]
+    handles.append(bus.subscribe(keys.key(robot, keys.IMAGE), lambda _key, payload: images.put(payload)))
+    handles.append(bus.watch_liveliness(keys.workers_alive_pattern(robot), lambda key, alive: inbox.put(("worker", key, alive))))
+    logger.info("filter loop serving robot %s", robot)
+    try:
+        while not stop.is_set():
+            item = inbox.get(timeout=0.01)
+            outgoing = handlers[item[0]](item[1], item[2]) if item is not None else []
+            image = images.take()
+            if image is not None:
+                outgoing += loop.handle_image(image)
+            loop.images_replaced_upstream = images.replaced
+            for key, payload in outgoing + loop.tick():
+                bus.publish(key, payload)
+    finally:
+        for handle in handles:
+            handle.close()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Command-line options of the filter."""
+    parser.add_argument("--config", type=Path, help="TOML file with FilterProcessConfig fields")
+    parser.add_argument("--robot-id", dest="robot_id", help="robot id (overrides the file)")
+    parser.add_argument("--map", help="'world' or a map file (overrides the file)")
+    parser.add_argument("--device", help="auto, cpu, cuda or cuda:N (overrides the file)")
+    parser.add_argument("--localizer", help="preset name or localizer TOML file (overrides the file)")
+    parser.add_argument("--seed", type=int, help="seed (overrides the file)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the filter, open the bus and serve until SIGINT/SIGTERM."""
+    overrides = {k: getattr(args, k) for k in ("robot_id", "map", "device", "localizer", "seed")}
+    config = load_service_config(FilterProcessConfig, args.config, overrides)
+    limit_torch_threads(config.torch_threads)
+    loop = build_loop(config)
+    stop = stop_on_signals()
+    bus = open_bus(config.transport.with_environment())
+    try:
+        serve(loop, bus, stop)
+    finally:
+        bus.close()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m services.filter_loop", description=__doc__)
+    add_arguments(parser)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

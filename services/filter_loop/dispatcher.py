@@ -1,0 +1,179 @@
+"""Sharding updates over the live workers: send, retry on a vanished worker, give up on timeout.
+
+Up to ``max_in_flight`` updates run at once (so a worker has the next request queued while the
+filter merges the previous one). Each update's particles are split into one shard per live worker; a
+shard whose worker's liveliness token disappears is sent again to another live worker (or to the
+next one that appears); when every shard has answered, the results are joined for the merge. An
+update that is not complete after ``timeout`` seconds is abandoned and counted.
+"""
+
+from __future__ import annotations
+
+import collections
+import itertools
+import logging
+import uuid
+from dataclasses import dataclass, field
+
+import torch
+
+from locnerf.filter.localizer import UpdateSnapshot
+from locnerf.messages.schemas import UpdateRequest, UpdateResult
+from locnerf.render.camera import PinholeIntrinsics
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class _Shard:
+    request: UpdateRequest
+    worker: str | None
+    log_likelihoods: list[float] | None = None
+
+
+@dataclass
+class _Update:
+    request_id: str
+    snapshot: UpdateSnapshot
+    started: float
+    shards: list[_Shard] = field(default_factory=list)
+
+    def complete(self) -> bool:
+        return all(shard.log_likelihoods is not None for shard in self.shards)
+
+
+@dataclass(frozen=True)
+class CompletedUpdate:
+    """Joined results: ``ids`` (N,) and ``log_likelihoods`` (N,) of snapshot ``(epoch, generation)``."""
+
+    epoch: int
+    generation: int
+    ids: torch.Tensor
+    log_likelihoods: torch.Tensor
+    latency: float
+
+
+Outgoing = tuple[str, UpdateRequest]
+
+
+class UpdateDispatcher:
+    """Tracks live workers and the update in flight.
+
+    Args:
+        timeout: seconds after which an incomplete update is abandoned.
+        max_in_flight: updates allowed in flight at once.
+    """
+
+    def __init__(self, timeout: float, max_in_flight: int = 2) -> None:
+        if max_in_flight < 1:
+            raise ValueError(f"max_in_flight {max_in_flight}: expected >= 1")
+        self.timeout = timeout
+        self.max_in_flight = max_in_flight
+        self.workers: dict[str, str] = {}
+        self.pending: dict[str, _Update] = {}
+        self.counters: collections.Counter[str] = collections.Counter()
+        self._turn = itertools.count()
+
+    @property
+    def can_start(self) -> bool:
+        """A worker is alive and fewer than ``max_in_flight`` updates are pending."""
+        return bool(self.workers) and len(self.pending) < self.max_in_flight
+
+    @property
+    def in_flight(self) -> int:
+        """Shards sent and not answered."""
+        return sum(s.log_likelihoods is None for update in self.pending.values() for s in update.shards)
+
+    def _next_worker(self) -> str | None:
+        if not self.workers:
+            return None
+        names = sorted(self.workers)
+        return names[next(self._turn) % len(names)]
+
+    def worker_changed(self, worker_id: str, device: str, alive: bool) -> list[Outgoing]:
+        """Record a liveliness change; returns shards re-sent because of it."""
+        if alive:
+            self.workers[worker_id] = device
+        else:
+            self.workers.pop(worker_id, None)
+        resend = []
+        for update in self.pending.values():
+            for shard in update.shards:
+                if shard.log_likelihoods is None and (shard.worker is None or shard.worker not in self.workers):
+                    shard.worker = self._next_worker()
+                    if shard.worker is not None:
+                        self.counters["shards_retried"] += 1
+                        logger.info("re-sending shard %d of update %s to %s", shard.request.shard, update.request_id, shard.worker)
+                        resend.append((shard.worker, shard.request))
+        return resend
+
+    def start(
+        self,
+        snapshot: UpdateSnapshot,
+        pixels: torch.Tensor,
+        observed_rgb: torch.Tensor,
+        intrinsics: PinholeIntrinsics,
+        exponent: float,
+        now: float,
+    ) -> list[Outgoing]:
+        """Split ``snapshot`` over the live workers; pixels (M, 2), observed_rgb (M, 3).
+
+        Raises:
+            RuntimeError: if :attr:`can_start` is false.
+        """
+        if not self.can_start:
+            raise RuntimeError(f"cannot start an update: {len(self.pending)} in flight (max {self.max_in_flight}), {len(self.workers)} worker(s)")
+        names = sorted(self.workers)
+        update = _Update(uuid.uuid4().hex[:12], snapshot, now)
+        poses = snapshot.poses.detach().double().cpu().reshape(-1, 16)
+        ids = snapshot.ids.cpu()
+        common = {
+            "request_id": update.request_id,
+            "epoch": snapshot.epoch,
+            "generation": snapshot.generation,
+            "pixels": pixels.cpu().tolist(),
+            "observed_rgb": observed_rgb.cpu().tolist(),
+            "intrinsics": intrinsics,
+            "exponent": exponent,
+        }
+        parts = torch.tensor_split(torch.arange(len(ids)), min(len(names), len(ids)))
+        for index, (part, worker) in enumerate(zip(parts, names)):
+            request = UpdateRequest(shard=index, ids=ids[part].tolist(), poses=poses[part].tolist(), **common)
+            update.shards.append(_Shard(request, worker))
+        self.pending[update.request_id] = update
+        self.counters["updates_started"] += 1
+        return [(shard.worker, shard.request) for shard in update.shards]
+
+    def receive(self, result: UpdateResult, now: float) -> CompletedUpdate | None:
+        """Store a shard's result; the joined update once every shard has answered.
+
+        Raises:
+            ValueError: a result for the pending update whose ids do not match its shard.
+        """
+        update = self.pending.get(result.request_id)
+        if update is None:
+            self.counters["late_results"] += 1
+            return None
+        if result.shard >= len(update.shards) or result.ids != update.shards[result.shard].request.ids:
+            raise ValueError(f"result of shard {result.shard} from {result.worker_id}: no such shard, or particle ids differ from the request's")
+        update.shards[result.shard].log_likelihoods = result.log_likelihoods
+        if not update.complete():
+            return None
+        del self.pending[update.request_id]
+        return CompletedUpdate(
+            epoch=update.snapshot.epoch,
+            generation=update.snapshot.generation,
+            ids=torch.tensor([i for s in update.shards for i in s.request.ids], dtype=torch.int64),
+            log_likelihoods=torch.tensor([x for s in update.shards for x in s.log_likelihoods], dtype=torch.float64),
+            latency=now - update.started,
+        )
+
+    def expire(self, now: float) -> int:
+        """Abandon the updates older than ``timeout``; returns how many."""
+        expired = [update for update in self.pending.values() if now - update.started > self.timeout]
+        for update in expired:
+            unanswered = sum(s.log_likelihoods is None for s in update.shards)
+            logger.warning("update %s timed out after %.1f s with %d shard(s) unanswered", update.request_id, now - update.started, unanswered)
+            del self.pending[update.request_id]
+            self.counters["updates_timed_out"] += 1
+        return len(expired)

@@ -1,0 +1,320 @@
+"""The filter loop: owns the localizer; turns sensor, result and command messages into outputs.
+
+Every ``handle_*`` method takes the payload bytes of one received message and returns the
+messages to publish as ``(key, payload)`` pairs; :meth:`FilterLoop.tick` starts updates, expires
+them and emits the periodic particle cloud and status. One thread calls all of them: the filter
+state has a single owner (design section 3). Bad messages are counted by kind and dropped.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from locnerf.field.protocol import MapNormalization
+from locnerf.filter.localizer import Localizer, SearchRegion
+from locnerf.filter.measurement import observed_colours, sample_pixels
+from locnerf.geometry.validation import InvalidPoseError, validate_poses
+from locnerf.messages import keys
+from locnerf.messages.codec import DecodeError, decode, decode_image, encode
+from locnerf.messages.schemas import (
+    FilterStatus,
+    GlobalLocalizationCommand,
+    ImageHeader,
+    InitialPoseCommand,
+    Odometry,
+    ParticleCloud,
+    PoseEstimate,
+    UpdateResult,
+)
+from services.filter_loop.dispatcher import UpdateDispatcher
+from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
+from services.filter_loop.odometry_history import OdometryHistory
+from services.filter_loop.state_file import SavedPose, load_pose, save_pose
+from services.runtime import BadMessages, RateMeter
+
+logger = logging.getLogger(__name__)
+
+Outgoing = list[tuple[str, bytes]]
+
+# Added to a restored covariance so that a fully converged (rank-deficient) one can be sampled.
+_COVARIANCE_JITTER = 1e-10
+
+
+class FilterLoopConfig(BaseModel):
+    """Timing and fault handling of the filter loop."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    start: Literal["global", "wait"] = Field("global", description="Without a saved state: 'global' (localize over the map) or 'wait' (for a command).")
+    update_timeout: float = Field(5.0, gt=0, description="An update not complete after this many seconds is abandoned.")
+    max_in_flight: int = Field(2, ge=1, description="Updates in flight at once (2 keeps the workers busy while the filter merges).")
+    max_image_age: float = Field(1.0, gt=0, description="Images older than the newest odometry by more than this are dropped, seconds.")
+    odometry_horizon: float = Field(5.0, gt=0, description="Seconds of odometry kept to carry particles to an image stamp.")
+    particles_rate: float = Field(2.0, gt=0, description="Particle clouds published per second.")
+    status_rate: float = Field(1.0, gt=0, description="Status messages published per second.")
+    state_file: str = Field("", description="File where the last pose is saved and resumed from on restart (empty: none).")
+
+
+class FilterLoop:
+    """Message-in, message-out wrapper of a :class:`Localizer`.
+
+    Args:
+        robot_id: key prefix.
+        localizer: the particle filter (owned from now on).
+        normalization: the map's frame and scale.
+        region: plausible camera positions for global localization (map units).
+        config: timing and fault handling.
+        clock: monotonic seconds.
+    """
+
+    def __init__(
+        self,
+        robot_id: str,
+        localizer: Localizer,
+        normalization: MapNormalization,
+        region: SearchRegion,
+        config: FilterLoopConfig,
+        clock: Callable[[], float],
+    ) -> None:
+        self.robot_id = robot_id
+        self.localizer = localizer
+        self.normalization = normalization
+        self.region = region
+        self.config = config
+        self.clock = clock
+        self.dispatcher = UpdateDispatcher(config.update_timeout, config.max_in_flight)
+        self.history = OdometryHistory(config.odometry_horizon)
+        self.bad = BadMessages("filter_loop")
+        self.rates = {name: RateMeter(clock=clock) for name in ("odometry", "pose", "image", "update")}
+        self.latencies: collections.deque[float] = collections.deque(maxlen=20)
+        self.images_replaced = 0
+        self.images_replaced_upstream = 0
+        self.odometry_restarts = 0
+        self._image: tuple[ImageHeader, np.ndarray] | None = None
+        self._last_particles = self._last_status = -float("inf")
+        self._state_file = Path(config.state_file) if config.state_file else None
+        self._start()
+
+    # ------------------------------------------------------------------ initialisation
+    def _start(self) -> None:
+        saved = load_pose(self._state_file) if self._state_file else None
+        if saved is not None:
+            logger.info("resuming from the saved pose of stamp %.3f (%s)", saved.stamp, self._state_file)
+            self._initialize_around(saved.T_world_cam, saved.covariance)
+            self.history.append(saved.stamp, saved.T_odom_body)
+        elif self.config.start == "global":
+            self.localizer.initialize_uniform(self.region)
+
+    def _initialize_around(self, T_world_cam: torch.Tensor, covariance: torch.Tensor) -> None:
+        mean = metric_to_map(T_world_cam.double(), self.normalization)
+        cov = convert_covariance(covariance, self.normalization, to_map=True) + _COVARIANCE_JITTER * torch.eye(6, dtype=torch.float64)
+        self.localizer.initialize_gaussian(mean, cov)
+
+    @property
+    def running(self) -> bool:
+        """Whether the filter has particles."""
+        return self.localizer.particles is not None
+
+    def _key(self, topic: keys.Topic, **fields: str) -> str:
+        return keys.key(self.robot_id, topic, **fields)
+
+    # ------------------------------------------------------------------ handlers
+    def handle_odometry(self, payload: bytes) -> Outgoing:
+        """Predict with the increment since the previous odometry; publish the pose."""
+        try:
+            message = decode(payload, Odometry)
+            pose = torch.tensor(message.T_odom_body, dtype=torch.float64)
+            validate_poses(pose, name="T_odom_body")
+            latest = self.history.latest_stamp
+            if latest is not None and message.stamp < latest - self.config.odometry_horizon:
+                logger.warning("odometry stamps restarted (%.3f after %.3f): treating it as a new odometry session", message.stamp, latest)
+                self.history.clear()
+                self.odometry_restarts += 1
+            increment = self.history.append(message.stamp, pose)
+        except DecodeError as error:
+            self.bad.record(error.kind, error.reason)
+            return []
+        except InvalidPoseError as error:
+            self.bad.record("invalid_odometry", str(error))
+            return []
+        except ValueError as error:
+            self.bad.record("stamp_backwards", str(error))
+            return []
+        self.rates["odometry"].tick()
+        if not self.running:
+            return []
+        self.localizer.predict(None if increment is None else increment_to_map(increment, self.normalization))
+        return [self._pose_message(message.stamp)]
+
+    def _pose_message(self, stamp: float) -> tuple[str, bytes]:
+        estimate = self.localizer.estimate()
+        pose = map_to_metric(estimate.pose, self.normalization)
+        covariance = convert_covariance(estimate.covariance, self.normalization, to_map=False)
+        covariance = 0.5 * (covariance + covariance.T)
+        if self._state_file is not None:
+            save_pose(self._state_file, SavedPose(stamp, pose, covariance, self.history.latest_pose))
+        self.rates["pose"].tick()
+        message = PoseEstimate(
+            stamp=stamp,
+            T_world_cam=pose.tolist(),
+            covariance=covariance.tolist(),
+            particle_count=estimate.particle_count,
+            spread=estimate.spread / self.normalization.scale,
+            effective_sample_size=estimate.effective_sample_size,
+            mode=estimate.stage,
+            epoch=self.localizer.epoch,
+        )
+        return self._key(keys.POSE), encode(message)
+
+    def handle_image(self, payload: bytes) -> Outgoing:
+        """Keep the newest valid image for the next update."""
+        try:
+            header, pixels = decode_image(payload)
+        except DecodeError as error:
+            self.bad.record(error.kind, error.reason)
+            return []
+        latest = self.history.latest_stamp
+        if latest is not None and header.stamp < latest - self.config.max_image_age:
+            self.bad.record("image_too_old", f"image stamp {header.stamp} is more than {self.config.max_image_age} s older than the odometry ({latest})")
+            return []
+        if self._image is not None:
+            self.images_replaced += 1
+        self._image = (header, pixels)
+        self.rates["image"].tick()
+        return []
+
+    def handle_result(self, payload: bytes) -> Outgoing:
+        """Store a shard's result; merge when the update is complete."""
+        try:
+            completed = self.dispatcher.receive(decode(payload, UpdateResult), self.clock())
+        except DecodeError as error:
+            self.bad.record(error.kind, error.reason)
+            return []
+        except ValueError as error:
+            self.bad.record("result_mismatch", str(error))
+            return []
+        if completed is None or not self.running:
+            return []
+        report = self.localizer.merge(completed.epoch, completed.generation, completed.ids, completed.log_likelihoods)
+        if report.outcome == "merged":
+            self.rates["update"].tick()
+            self.latencies.append(completed.latency)
+        logger.debug("update %s: ESS %.1f, %d particles, stage %s", report.outcome, report.effective_sample_size, report.particle_count, report.stage)
+        return []
+
+    def handle_initial_pose(self, payload: bytes) -> Outgoing:
+        """Re-initialise around the commanded metric pose."""
+        try:
+            command = decode(payload, InitialPoseCommand)
+            pose = torch.tensor(command.T_world_cam, dtype=torch.float64)
+            validate_poses(pose, name="initial pose")
+        except DecodeError as error:
+            self.bad.record(f"command_{error.kind}", error.reason)
+            return []
+        except InvalidPoseError as error:
+            self.bad.record("command_invalid", str(error))
+            return []
+        logger.info("initial pose command: re-initialising")
+        self._initialize_around(pose, torch.tensor(command.covariance, dtype=torch.float64))
+        return []
+
+    def handle_global_localization(self, payload: bytes) -> Outgoing:
+        """Re-initialise over the whole map."""
+        try:
+            decode(payload, GlobalLocalizationCommand)
+        except DecodeError as error:
+            self.bad.record(f"command_{error.kind}", error.reason)
+            return []
+        logger.info("global localization command: re-initialising over the map")
+        self.localizer.initialize_uniform(self.region)
+        return []
+
+    def worker_changed(self, token_key: str, alive: bool) -> Outgoing:
+        """A worker's liveliness token appeared or vanished."""
+        try:
+            worker_id, device = keys.parse_worker_token(token_key)
+        except ValueError as error:
+            self.bad.record("bad_token", str(error))
+            return []
+        logger.info("worker %s (%s) %s", worker_id, device, "joined" if alive else "left")
+        return self._requests(self.dispatcher.worker_changed(worker_id, device, alive))
+
+    def _requests(self, outgoing: list) -> Outgoing:
+        return [(self._key(keys.UPDATE_REQUEST, worker_id=worker), encode(request)) for worker, request in outgoing]
+
+    # ------------------------------------------------------------------ periodic work
+    def tick(self) -> Outgoing:
+        """Expire or start an update; publish particles and status when due."""
+        now = self.clock()
+        self.dispatcher.expire(now)
+        out: Outgoing = []
+        if self.running and self._image is not None and self.dispatcher.can_start:
+            out += self._start_update(now)
+        if self.running and now - self._last_particles >= 1.0 / self.config.particles_rate:
+            self._last_particles = now
+            out.append(self._particles_message())
+        if now - self._last_status >= 1.0 / self.config.status_rate:
+            self._last_status = now
+            out.append((self._key(keys.STATUS), encode(self.status())))
+        return out
+
+    def _start_update(self, now: float) -> Outgoing:
+        header, pixels = self._image
+        self._image = None
+        try:
+            carry = self.history.carry_to(header.stamp)
+        except ValueError as error:
+            self.bad.record("image_too_old", str(error))
+            return []
+        if carry is not None:
+            carry = increment_to_map(carry, self.normalization)
+        snapshot = self.localizer.snapshot(carry)
+        measurement = self.localizer.config.measurement
+        intrinsics = header.intrinsics
+        chosen = sample_pixels(intrinsics.height, intrinsics.width, measurement.pixels, self.localizer.generator)
+        image = torch.from_numpy(pixels).float() / 255.0
+        colours = observed_colours(image, chosen)
+        return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now))
+
+    def _particles_message(self) -> tuple[str, bytes]:
+        particles = self.localizer.particles
+        poses = map_to_metric(particles.poses.double().cpu(), self.normalization)
+        message = ParticleCloud(
+            stamp=self.history.latest_stamp or 0.0, positions=poses[:, :3, 3].tolist(), weights=particles.weights.double().cpu().tolist()
+        )
+        return self._key(keys.PARTICLES), encode(message)
+
+    def counters(self) -> dict[str, int]:
+        """Every count the status reports."""
+        merged = self.localizer.counters
+        counts = {
+            "updates_merged": merged["merged"],
+            "stale_results": merged["stale"],
+            "degenerate_updates": merged["degenerate"],
+            "images_replaced": self.images_replaced + self.images_replaced_upstream,
+            "bad_messages": self.bad.total,
+            "odometry_restarts": self.odometry_restarts,
+        }
+        counts |= dict(self.dispatcher.counters)
+        counts |= {f"bad_{kind}": count for kind, count in self.bad.counts.items()}
+        return counts
+
+    def status(self) -> FilterStatus:
+        """The current health summary."""
+        return FilterStatus(
+            stamp=self.history.latest_stamp or 0.0,
+            state="running" if self.running else "waiting_for_initialisation",
+            rates_hz={name: meter.rate() for name, meter in self.rates.items()},
+            update_latency_s=sum(self.latencies) / len(self.latencies) if self.latencies else None,
+            in_flight=self.dispatcher.in_flight,
+            workers=sorted(self.dispatcher.workers),
+            counters=self.counters(),
+        )

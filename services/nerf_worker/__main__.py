@@ -1,0 +1,106 @@
+"""``python -m services.nerf_worker``: serve update requests for one map until stopped."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import socket
+import sys
+import threading
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from locnerf.cli.map_source import open_map
+from locnerf.devices import resolve_device
+from locnerf.messages import keys
+from locnerf.messages.codec import DecodeError, decode, encode
+from locnerf.messages.schemas import UpdateRequest
+from services.nerf_worker.service import NerfWorker, RequestError
+from services.runtime import BadMessages, limit_torch_threads, load_service_config, stop_on_signals
+from services.transport import Bus, Inbox, TransportConfig, open_bus
+
+logger = logging.getLogger(__name__)
+
+
+class WorkerConfig(BaseModel):
+    """A NeRF worker process."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    robot_id: str = Field("robot", description="Robot whose keys (locnerf/<robot_id>/...) the worker serves.")
+    map: str = Field("world", description="Map to load: 'world' (the procedural world) or a map file path.")
+    device: str = Field("auto", description="auto, cpu, cuda or cuda:N.")
+    worker_id: str = Field("", description="Name of this worker (empty: <hostname>-<pid>).")
+    torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
+    transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
+
+
+def default_worker_id() -> str:
+    """``<hostname>-<pid>`` with key-expression-safe characters."""
+    host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname())
+    return f"{host}-{os.getpid()}"
+
+
+def serve(worker: NerfWorker, bus: Bus, robot_id: str, device_name: str, stop: threading.Event) -> BadMessages:
+    """Answer requests addressed to this worker until ``stop`` is set; returns the bad-message counts."""
+    bad = BadMessages("nerf_worker")
+    inbox: Inbox[bytes] = Inbox(capacity=8)
+    subscription = bus.subscribe(keys.key(robot_id, keys.UPDATE_REQUEST, worker_id=worker.worker_id), lambda _k, payload: inbox.put(payload))
+    token = bus.declare_token(keys.key(robot_id, keys.WORKER_ALIVE, worker_id=worker.worker_id, device=device_name))
+    result_key = keys.key(robot_id, keys.UPDATE_RESULT)
+    logger.info("worker %s serving robot %s", worker.worker_id, robot_id)
+    try:
+        while not stop.is_set():
+            payload = inbox.get(timeout=0.1)
+            if payload is None:
+                continue
+            try:
+                result = worker.handle(decode(payload, UpdateRequest))
+            except DecodeError as error:
+                bad.record(error.kind, error.reason)
+                continue
+            except RequestError as error:
+                bad.record("bad_request", str(error))
+                continue
+            bus.publish(result_key, encode(result))
+    finally:
+        token.close()
+        subscription.close()
+    return bad
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Command-line options of the worker."""
+    parser.add_argument("--config", type=Path, help="TOML file with WorkerConfig fields")
+    parser.add_argument("--robot-id", dest="robot_id", help="robot id (overrides the file)")
+    parser.add_argument("--map", help="'world' or a map file (overrides the file)")
+    parser.add_argument("--device", help="auto, cpu, cuda or cuda:N (overrides the file)")
+    parser.add_argument("--worker-id", dest="worker_id", help="name of this worker (overrides the file)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Load the map, open the bus and serve until SIGINT/SIGTERM."""
+    config = load_service_config(WorkerConfig, args.config, {k: getattr(args, k) for k in ("robot_id", "map", "device", "worker_id")})
+    limit_torch_threads(config.torch_threads)
+    device = resolve_device(config.device)
+    worker = NerfWorker(open_map(config.map, device), config.worker_id or default_worker_id())
+    stop = stop_on_signals()
+    bus = open_bus(config.transport.with_environment())
+    try:
+        serve(worker, bus, config.robot_id, device.type, stop)
+    finally:
+        bus.close()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m services.nerf_worker", description=__doc__)
+    add_arguments(parser)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,115 @@
+"""Plumbing shared by the service processes: bad-message accounting, rates, stop signals."""
+
+from __future__ import annotations
+
+import collections
+import logging
+import signal
+import threading
+import time
+import tomllib
+from pathlib import Path
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+ConfigModel = TypeVar("ConfigModel", bound=BaseModel)
+
+logger = logging.getLogger(__name__)
+
+
+class BadMessages:
+    """Counts dropped messages by kind and logs the first one of each kind with its reason."""
+
+    def __init__(self, service: str) -> None:
+        self.service = service
+        self.counts: collections.Counter[str] = collections.Counter()
+
+    def record(self, kind: str, reason: str) -> None:
+        """Count one bad message; log it if it is the first of its kind."""
+        if self.counts[kind] == 0:
+            logger.warning("%s: dropping a bad message (%s): %s (further ones are only counted)", self.service, kind, reason)
+        self.counts[kind] += 1
+
+    @property
+    def total(self) -> int:
+        """All bad messages so far."""
+        return sum(self.counts.values())
+
+
+class RateMeter:
+    """Events per second over a sliding window.
+
+    Args:
+        window: seconds of history.
+        clock: monotonic seconds.
+    """
+
+    def __init__(self, window: float = 5.0, clock=time.monotonic) -> None:
+        self.window = window
+        self.clock = clock
+        self._times: collections.deque[float] = collections.deque()
+
+    def tick(self) -> None:
+        """Record one event now."""
+        now = self.clock()
+        self._times.append(now)
+        while self._times and now - self._times[0] > self.window:
+            self._times.popleft()
+
+    def rate(self) -> float:
+        """Events per second in the window (0 with fewer than two events)."""
+        now = self.clock()
+        while self._times and now - self._times[0] > self.window:
+            self._times.popleft()
+        if len(self._times) < 2:
+            return 0.0
+        span = self._times[-1] - self._times[0]
+        return (len(self._times) - 1) / span if span > 0 else 0.0
+
+
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM, for a clean shutdown of the service loop."""
+    stop = threading.Event()
+
+    def handler(signum: int, _frame) -> None:
+        logger.info("signal %d: stopping", signum)
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+def load_service_config(model: type[ConfigModel], path: Path | None, overrides: dict[str, Any]) -> ConfigModel:
+    """A service config from an optional TOML file, then non-None command-line ``overrides``.
+
+    Raises:
+        FileNotFoundError: a missing file. ValueError: invalid TOML or fields (message names the file).
+    """
+    data: dict[str, Any] = {}
+    source = "command line"
+    if path is not None:
+        source = str(path)
+        try:
+            data = tomllib.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise FileNotFoundError(f"{path}: service configuration file not found") from None
+        except tomllib.TOMLDecodeError as error:
+            raise ValueError(f"{path}: not valid TOML ({error})") from error
+    data |= {name: value for name, value in overrides.items() if value is not None}
+    try:
+        return model.model_validate(data)
+    except ValidationError as error:
+        raise ValueError(f"{source}: invalid {model.__name__}:\n{error}") from error
+
+
+def limit_torch_threads(threads: int) -> None:
+    """Cap torch's intra-op threads: several service processes share few cores, and oversubscribed
+    OpenMP threads spin instead of working (a render measured 30× slower with 2 threads on a loaded
+    2-core machine)."""
+    import torch
+
+    if threads < 1:
+        raise ValueError(f"torch_threads {threads}: expected >= 1")
+    torch.set_num_threads(threads)

@@ -1,0 +1,145 @@
+"""``python -m services.sensor_ingest``: publish a sensor stream (procedural world or a replay) on the bus."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Literal
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from locnerf.data.detect import read_dataset
+from locnerf.messages import keys
+from locnerf.messages.codec import DecodeError, decode
+from locnerf.messages.schemas import FilterStatus
+from locnerf.sim.world import ProceduralWorld
+from services.runtime import limit_torch_threads, load_service_config, stop_on_signals
+from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
+from services.sensor_ingest.events import SensorEvent
+from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
+from services.sensor_ingest.service import Pacer, event_message
+from services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from services.transport import Bus, Inbox, TransportConfig, open_bus
+
+logger = logging.getLogger(__name__)
+
+
+class IngestConfig(BaseModel):
+    """A sensor-ingest process."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    robot_id: str = Field("robot", description="Robot whose sensor keys are published.")
+    source: Literal["world", "replay", "camera"] = Field(
+        "world",
+        description="Stream source: the procedural world along a trajectory, the replay of a posed image sequence, "
+        "or a live camera / video file (images only; odometry comes from the robot on sensors/odom).",
+    )
+    world: WorldSourceConfig = Field(default_factory=WorldSourceConfig, description="Rates, duration and noise of the world stream.")
+    replay: ReplaySourceConfig = Field(default_factory=ReplaySourceConfig, description="Sequence, rates and noise of the replay.")
+    camera: CameraSourceConfig = Field(default_factory=CameraSourceConfig, description="Capture device or video file and its calibration.")
+    speed: float = Field(1.0, ge=0, description="Sensor seconds per wall second (0: as fast as possible).")
+    seed: int = Field(0, description="Seed of the noise draws.")
+    wait_for_workers: int = Field(
+        0, ge=0, description="Before streaming, wait until the filter reports this many live workers (0: start at once)."
+    )
+    wait_timeout: float = Field(120.0, gt=0, description="Longest wait for the filter and workers, seconds.")
+    torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
+    transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
+
+
+def wait_for_workers(bus: Bus, robot_id: str, count: int, timeout: float, stop: threading.Event) -> bool:
+    """Block until a FilterStatus lists at least ``count`` workers; False on timeout or stop."""
+    inbox: Inbox[bytes] = Inbox(capacity=4)
+    subscription = bus.subscribe(keys.key(robot_id, keys.STATUS), lambda _k, payload: inbox.put(payload))
+    deadline = time.monotonic() + timeout
+    try:
+        while not stop.is_set() and time.monotonic() < deadline:
+            payload = inbox.get(timeout=0.2)
+            if payload is None:
+                continue
+            try:
+                if len(decode(payload, FilterStatus).workers) >= count:
+                    return True
+            except DecodeError as error:
+                logger.warning("ignoring a bad status message while waiting: %s", error)
+        return False
+    finally:
+        subscription.close()
+
+
+def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
+    """The configured source's event stream.
+
+    Raises:
+        ValueError: a replay without a path, a camera without intrinsics or that cannot be opened.
+    """
+    generator = torch.Generator().manual_seed(config.seed)
+    if config.source == "world":
+        return world_events(ProceduralWorld.default(), config.world, generator)
+    if config.source == "camera":
+        return camera_events(config.camera)
+    if not config.replay.path:
+        raise ValueError("source = 'replay' needs replay.path: the data-set folder to replay")
+    replay = config.replay
+    sequence = read_dataset(replay.path, split=replay.split, downscale=replay.downscale, skip_missing=replay.skip_missing)
+    return replay_events(sequence, config.replay, generator)
+
+
+def stream(bus: Bus, config: IngestConfig, stop: threading.Event) -> int:
+    """Publish the configured stream; returns the number of events sent."""
+    events = sensor_events(config)
+    sent = 0
+    for event in Pacer(config.speed).paced(events, stop.is_set):
+        bus.publish(*event_message(config.robot_id, event))
+        sent += 1
+    return sent
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Command-line options of the ingest."""
+    parser.add_argument("--config", type=Path, help="TOML file with IngestConfig fields")
+    parser.add_argument("--robot-id", dest="robot_id", help="robot id (overrides the file)")
+    parser.add_argument("--speed", type=float, help="sensor seconds per wall second, 0 = as fast as possible (overrides the file)")
+    parser.add_argument("--seed", type=int, help="seed of the noise (overrides the file)")
+    parser.add_argument("--duration", type=float, help="seconds of sensor time to stream (overrides world.duration)")
+    parser.add_argument("--wait-for-workers", dest="wait_for_workers", type=int, help="wait for this many live workers first")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Stream until the source ends or SIGINT/SIGTERM."""
+    overrides = {k: getattr(args, k) for k in ("robot_id", "speed", "seed", "wait_for_workers")}
+    config = load_service_config(IngestConfig, args.config, overrides)
+    if args.duration is not None:
+        config = IngestConfig.model_validate(config.model_dump() | {"world": config.world.model_dump() | {"duration": args.duration}})
+    limit_torch_threads(config.torch_threads)
+    stop = stop_on_signals()
+    bus = open_bus(config.transport.with_environment())
+    try:
+        if config.wait_for_workers and not wait_for_workers(bus, config.robot_id, config.wait_for_workers, config.wait_timeout, stop):
+            if stop.is_set():
+                return 0
+            logger.error("no filter with %d live worker(s) within %.0f s: not streaming", config.wait_for_workers, config.wait_timeout)
+            return 1
+        sent = stream(bus, config, stop)
+        logger.info("ingest: %d events sent", sent)
+    finally:
+        bus.close()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m services.sensor_ingest", description=__doc__)
+    add_arguments(parser)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,53 @@
+"""The ingest service: sensor events to wire messages, paced in (scaled) real time."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Iterator
+
+from locnerf.messages import keys
+from locnerf.messages.codec import encode, encode_image
+from locnerf.messages.schemas import ImageHeader, Odometry, PoseStamped
+from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
+
+
+def event_message(robot_id: str, event: SensorEvent, camera_frame: str = "camera") -> tuple[str, bytes]:
+    """(key, payload) of one event."""
+    if isinstance(event, OdometryEvent):
+        return keys.key(robot_id, keys.ODOMETRY), encode(Odometry(stamp=event.stamp, frame_id="odom", T_odom_body=event.T_odom_body.tolist()))
+    if isinstance(event, GroundTruthEvent):
+        return keys.key(robot_id, keys.GROUND_TRUTH), encode(PoseStamped(stamp=event.stamp, frame_id="map", T_world_cam=event.T_world_cam.tolist()))
+    if isinstance(event, ImageEvent):
+        height, width = event.pixels.shape[:2]
+        header = ImageHeader(stamp=event.stamp, frame_id=camera_frame, encoding="rgb8", width=width, height=height, intrinsics=event.intrinsics)
+        return keys.key(robot_id, keys.IMAGE), encode_image(header, event.pixels)
+    raise TypeError(f"unknown sensor event {type(event).__name__}")
+
+
+class Pacer:
+    """Releases events at their stamps divided by ``speed`` (0: as fast as possible).
+
+    Args:
+        speed: sensor seconds per wall second (1 real time, 2 twice as fast, 0 no waiting).
+        clock: monotonic seconds; sleep: waits seconds (both injectable for tests).
+    """
+
+    def __init__(self, speed: float = 1.0, clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
+        if speed < 0:
+            raise ValueError(f"speed {speed}: expected >= 0 (0 = as fast as possible)")
+        self.speed, self.clock, self.sleep = speed, clock, sleep
+
+    def paced(self, events: Iterable[SensorEvent], should_stop: Callable[[], bool] = lambda: False) -> Iterator[SensorEvent]:
+        """Yield events, waiting until each one's time has come."""
+        start_wall: float | None = None
+        start_stamp = 0.0
+        for event in events:
+            if should_stop():
+                return
+            if self.speed > 0:
+                if start_wall is None:
+                    start_wall, start_stamp = self.clock(), event.stamp
+                delay = start_wall + (event.stamp - start_stamp) / self.speed - self.clock()
+                if delay > 0:
+                    self.sleep(delay)
+            yield event

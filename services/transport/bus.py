@@ -1,0 +1,94 @@
+"""The Bus protocol that services talk through, and the receive-side inboxes.
+
+A bus publishes bytes on keys, delivers subscribed samples to callbacks, and tracks liveliness
+tokens. Callbacks run on the transport's threads: they must only enqueue, never block or compute;
+:class:`Inbox` (bounded FIFO, oldest dropped when full) and :class:`LatestSlot` (keeps only the
+newest item, the ring channel of 1 for images) are the two places they enqueue into.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from typing import Callable, Generic, Protocol, TypeVar
+
+Item = TypeVar("Item")
+SampleCallback = Callable[[str, bytes], None]
+LivelinessCallback = Callable[[str, bool], None]
+
+
+class Closeable(Protocol):
+    """A subscription or token; closing undeclares it."""
+
+    def close(self) -> None: ...
+
+
+class Bus(Protocol):
+    """What a service needs of the middleware."""
+
+    def publish(self, key: str, payload: bytes) -> None:
+        """Send ``payload`` on ``key`` (never blocks on slow subscribers)."""
+
+    def subscribe(self, key_expr: str, callback: SampleCallback) -> Closeable:
+        """Call ``callback(key, payload)`` for every sample matching ``key_expr``."""
+
+    def declare_token(self, key: str) -> Closeable:
+        """Announce liveliness on ``key`` until closed or until the process dies."""
+
+    def watch_liveliness(self, key_expr: str, callback: LivelinessCallback) -> Closeable:
+        """``callback(key, alive)`` for tokens matching ``key_expr``, current ones included."""
+
+    def close(self) -> None:
+        """Release the session."""
+
+
+class Inbox(Generic[Item]):
+    """Bounded FIFO for callbacks: ``put`` never blocks; when full the oldest item is dropped.
+
+    Args:
+        capacity: items kept.
+    """
+
+    def __init__(self, capacity: int = 256) -> None:
+        if capacity < 1:
+            raise ValueError(f"inbox capacity {capacity}: expected >= 1")
+        self._items: collections.deque[Item] = collections.deque(maxlen=capacity)
+        self._ready = threading.Condition()
+        self.dropped = 0
+
+    def put(self, item: Item) -> None:
+        """Append (called from transport threads)."""
+        with self._ready:
+            if len(self._items) == self._items.maxlen:
+                self.dropped += 1
+            self._items.append(item)
+            self._ready.notify()
+
+    def get(self, timeout: float) -> Item | None:
+        """The oldest item, waiting up to ``timeout`` seconds; None if nothing arrived."""
+        with self._ready:
+            if not self._items:
+                self._ready.wait(timeout)
+            return self._items.popleft() if self._items else None
+
+
+class LatestSlot(Generic[Item]):
+    """Holds only the newest item: a ring channel of capacity 1."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._item: Item | None = None
+        self.replaced = 0
+
+    def put(self, item: Item) -> None:
+        """Replace the held item (called from transport threads)."""
+        with self._lock:
+            if self._item is not None:
+                self.replaced += 1
+            self._item = item
+
+    def take(self) -> Item | None:
+        """The newest item, or None; the slot is empty afterwards."""
+        with self._lock:
+            item, self._item = self._item, None
+            return item

@@ -1,0 +1,81 @@
+"""The Zenoh implementation of the Bus: the only module of the project that imports zenoh."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import zenoh
+
+from services.transport.bus import LivelinessCallback, SampleCallback
+from services.transport.config import TransportConfig
+
+logger = logging.getLogger(__name__)
+
+
+def zenoh_config(config: TransportConfig) -> zenoh.Config:
+    """A zenoh.Config from our TransportConfig."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(config.mode))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(config.multicast_scouting))
+    conf.insert_json5("connect/endpoints", json.dumps(list(config.connect)))
+    if config.mode == "peer":
+        conf.insert_json5("listen/endpoints", json.dumps(list(config.listen)))
+    return conf
+
+
+class _Undeclare:
+    def __init__(self, entity) -> None:
+        self._entity = entity
+
+    def close(self) -> None:
+        if self._entity is not None:
+            self._entity.undeclare()
+            self._entity = None
+
+
+def _safe(callback: SampleCallback, sample: zenoh.Sample) -> None:
+    try:
+        callback(str(sample.key_expr), sample.payload.to_bytes())
+    except Exception:  # a faulty callback must not take the Zenoh thread down
+        logger.exception("subscriber callback failed on %s", sample.key_expr)
+
+
+class ZenohBus:
+    """A Zenoh session behind the Bus protocol.
+
+    Args:
+        config: mode and endpoints.
+    """
+
+    def __init__(self, config: TransportConfig) -> None:
+        self.config = config
+        self._session = zenoh.open(zenoh_config(config))
+        self._publishers: dict[str, zenoh.Publisher] = {}
+
+    def publish(self, key: str, payload: bytes) -> None:
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            publisher = self._publishers[key] = self._session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
+        publisher.put(payload)
+
+    def subscribe(self, key_expr: str, callback: SampleCallback) -> _Undeclare:
+        return _Undeclare(self._session.declare_subscriber(key_expr, lambda sample: _safe(callback, sample)))
+
+    def declare_token(self, key: str) -> _Undeclare:
+        return _Undeclare(self._session.liveliness().declare_token(key))
+
+    def watch_liveliness(self, key_expr: str, callback: LivelinessCallback) -> _Undeclare:
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                callback(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+            except Exception:
+                logger.exception("liveliness callback failed on %s", sample.key_expr)
+
+        return _Undeclare(self._session.liveliness().declare_subscriber(key_expr, on_sample, history=True))
+
+    def close(self) -> None:
+        for publisher in self._publishers.values():
+            publisher.undeclare()
+        self._publishers.clear()
+        self._session.close()

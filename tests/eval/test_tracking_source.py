@@ -1,0 +1,118 @@
+"""Tracking scenarios: odometry on the grid, the unseen kidnapping, sequence replay."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from locnerf.data import PosedImages, read_nerf_synthetic
+from locnerf.eval.tracking_source import ScenarioConfig, SequencePath, WorldPath, build_scenario, dataset_to_map
+from locnerf.field.protocol import MapNormalization
+from locnerf.geometry import make_pose, pose_inverse, rotation_error_deg, so3_exp, translation_error
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.sim.sensors import CameraConfig, VioConfig
+from locnerf.sim.trajectory import FigureEightTrajectory
+from locnerf.sim.world import ProceduralWorld
+
+LEGO_ORBIT = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "nerf_synthetic" / "lego_test_orbit"
+PERFECT_VIO = VioConfig(rate=15.0, translation_drift=0.0, yaw_drift_rate=0.0, rotation_noise=0.0, translation_noise=0.0)
+
+
+def world_path() -> WorldPath:
+    return WorldPath(ProceduralWorld.default("cpu"), FigureEightTrajectory(), CameraConfig())
+
+
+def increments(poses: torch.Tensor) -> torch.Tensor:
+    return pose_inverse(poses[:-1]) @ poses[1:]
+
+
+def test_perfect_odometry_sees_every_step_but_the_kidnapping() -> None:
+    path = world_path()
+    plain = build_scenario(path, ScenarioConfig(duration=4.0, vio=PERFECT_VIO), MapNormalization())
+    kidnapped = build_scenario(path, ScenarioConfig(duration=4.0, vio=PERFECT_VIO, kidnap_at=2.0), MapNormalization())
+    jump = kidnapped.kidnap_tick
+    assert jump == 30
+    # The truth jumps far; before the jump everything is as without a kidnapping.
+    assert float(translation_error(kidnapped.truth[jump], kidnapped.truth[jump - 1])) > 0.5
+    torch.testing.assert_close(kidnapped.truth[:jump], plain.truth[:jump])
+    seen = increments(kidnapped.odometry)
+    # Across the jump the odometry reports the motion the camera would have made without it ...
+    torch.testing.assert_close(seen[jump - 1], increments(plain.truth)[jump - 1], atol=1e-9, rtol=0)
+    # ... and afterwards the true motion of the moved camera.
+    torch.testing.assert_close(seen[jump:], increments(kidnapped.truth)[jump:], atol=1e-9, rtol=0)
+
+
+def test_images_lie_on_the_odometry_grid_at_the_requested_rate() -> None:
+    scenario = build_scenario(world_path(), ScenarioConfig(duration=3.0, image_rate=3.0, vio=PERFECT_VIO), MapNormalization())
+    assert scenario.image_ticks == list(range(0, 46, 5))
+    assert len(scenario.stamps) == 46
+
+
+def test_image_rate_above_odometry_rate_is_refused() -> None:
+    with pytest.raises(ValueError, match="image rate 30.0 Hz above the odometry rate 15.0 Hz"):
+        build_scenario(world_path(), ScenarioConfig(duration=1.0, image_rate=30.0), MapNormalization())
+
+
+def test_kidnapping_after_the_run_is_refused() -> None:
+    with pytest.raises(ValueError, match="kidnap_at 5.0 s"):
+        build_scenario(world_path(), ScenarioConfig(duration=2.0, kidnap_at=5.0), MapNormalization())
+
+
+def test_dataset_to_map_scales_then_moves() -> None:
+    turn = make_pose(so3_exp(torch.tensor([0.0, 0.5, 0.0], dtype=torch.float64)), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    normalization = MapNormalization(T_map_dataset=turn.tolist(), scale=2.0)
+    pose = make_pose(so3_exp(torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)), torch.tensor([0.5, -1.0, 0.25], dtype=torch.float64))
+    mapped = dataset_to_map(pose[None], normalization)[0]
+    torch.testing.assert_close(mapped[:3, 3], turn[:3, :3] @ (2.0 * pose[:3, 3]) + turn[:3, 3])
+    torch.testing.assert_close(mapped[:3, :3], turn[:3, :3] @ pose[:3, :3])
+
+
+def tiny_sequence(count: int = 6) -> PosedImages:
+    angles = torch.arange(count, dtype=torch.float64) * (2 * torch.pi / count)
+    rotations = so3_exp(torch.stack([torch.zeros(count), angles, torch.zeros(count)], dim=-1).double())
+    positions = torch.stack([4 * torch.sin(angles), torch.ones(count), 4 * torch.cos(angles)], dim=-1)
+    intrinsics = PinholeIntrinsics(fx=8.0, fy=8.0, cx=4.0, cy=3.0, width=8, height=6)
+    images = torch.arange(count, dtype=torch.float32)[:, None, None, None].expand(count, 6, 8, 3) / count
+    return PosedImages(
+        images=images.contiguous(), T_world_cam=make_pose(rotations, positions), intrinsics=intrinsics, near=0.1, far=10.0,
+        normalization=MapNormalization(), names=[f"r_{i}" for i in range(count)], scene_bounds=torch.tensor([[-1.0] * 3, [1.0] * 3]),
+    )
+
+
+def test_sequence_path_passes_through_its_frames_along_geodesics() -> None:
+    frames = tiny_sequence()
+    step = float((frames.T_world_cam[1, :3, 3] - frames.T_world_cam[0, :3, 3]).norm())
+    path = SequencePath(frames, speed=step * 3.0, odom_rate=15.0)
+    assert path.ticks_per_frame == 5
+    stamps = torch.arange(len(frames) + 1, dtype=torch.float64) * path.frame_period
+    torch.testing.assert_close(path.poses_at(stamps), torch.cat([frames.T_world_cam, frames.T_world_cam[:1]]))
+    middle = path.poses_at(torch.tensor([0.5 * path.frame_period], dtype=torch.float64))[0]
+    # Halfway along a pure yaw + chord: the rotation is half way, the position on the chord's screw.
+    assert abs(float(rotation_error_deg(middle, frames.T_world_cam[0])) - 30.0) < 1e-9
+    assert float(middle[1, 3]) == pytest.approx(1.0)
+    scenario = build_scenario(path, ScenarioConfig(image_rate=3.0, vio=PERFECT_VIO, kidnap_at=0.5), MapNormalization())
+    generator = torch.Generator().manual_seed(0)
+    for tick in scenario.image_ticks:
+        frame = round(float(scenario.path_times[tick]) / path.frame_period) % len(frames)
+        torch.testing.assert_close(scenario.image(tick, generator), frames.images[frame])
+        torch.testing.assert_close(scenario.truth[tick], frames.T_world_cam[frame])
+
+
+def test_sequence_needs_two_frames() -> None:
+    with pytest.raises(ValueError, match="1 frame"):
+        SequencePath(tiny_sequence().subset([0]), speed=1.0, odom_rate=15.0)
+
+
+@pytest.mark.skipif(not LEGO_ORBIT.is_dir(), reason="the shared data set ../shared/data/nerf_synthetic/lego_test_orbit is absent")
+def test_lego_orbit_replays_as_a_closed_loop() -> None:
+    frames = read_nerf_synthetic(LEGO_ORBIT, split="test", background="white", downscale=8)
+    assert len(frames) == 200 and (frames.intrinsics.width, frames.intrinsics.height) == (50, 50)
+    path = SequencePath(frames, speed=0.66, odom_rate=15.0)
+    assert path.ticks_per_frame == 5  # mean frame spacing 0.22 units at 0.66 units/s: 1/3 s
+    scenario = build_scenario(path, ScenarioConfig(duration=10.0, image_rate=3.0, vio=PERFECT_VIO), MapNormalization())
+    assert scenario.image_ticks == list(range(0, 151, 5))
+    torch.testing.assert_close(scenario.truth[scenario.image_ticks], frames.T_world_cam[:31])
+    # The white background of the RGBA frames is kept: corners are white.
+    assert float(frames.images[:, 0, 0].min()) > 0.99

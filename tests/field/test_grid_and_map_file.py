@@ -1,0 +1,121 @@
+"""The grid field's marcher (with and without gradients) and the map file round trip and refusals."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from locnerf.field.grid import GridField, GridFieldConfig
+from locnerf.field.grid_map import GridMap
+from locnerf.field.map_file import MapFileError, load_map, save_map
+from locnerf.field.map_info import MapInfo
+from locnerf.field.protocol import MapNormalization, RadianceMap
+from locnerf.render.camera import PinholeIntrinsics
+
+
+def _tiny_map(generator: torch.Generator, ndc: bool = False) -> GridMap:
+    box = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    field = GridField(box, GridFieldConfig(voxels=12**3, features=4, block_samples=5), background=(1.0, 1.0, 1.0))
+    with torch.no_grad():
+        field.grid.copy_(torch.randn(field.grid.shape, generator=generator) * 3.0)
+        field.decoder[2].weight.normal_(generator=generator)
+    field.update_occupancy()
+    poses = torch.eye(4, dtype=torch.float64).repeat(2, 1, 1)
+    poses[:, 2, 3] = torch.tensor([3.0, 3.5])
+    intrinsics = PinholeIntrinsics(fx=20.0, fy=20.0, cx=8.0, cy=6.0, width=16, height=12)
+    return GridMap(field.eval(), MapInfo(MapNormalization(ndc=ndc), intrinsics, poses, {"source": "test"}))
+
+
+def _rays(generator: torch.Generator, count: int = 64) -> tuple[torch.Tensor, torch.Tensor]:
+    origins = torch.tensor([0.0, 0.0, 3.0]) + 0.3 * torch.randn(count, 3, generator=generator)
+    directions = torch.cat((0.3 * torch.randn(count, 2, generator=generator), -torch.ones(count, 1)), dim=1)
+    return origins, directions
+
+
+def test_block_marcher_matches_single_pass(generator: torch.Generator) -> None:
+    radiance_map = _tiny_map(generator)
+    assert isinstance(radiance_map, RadianceMap)
+    origins, directions = _rays(generator)
+    field = radiance_map.field
+    without_termination = GridField(field.box, field.config.model_copy(update={"termination_transmittance": 1e-12}), (1.0, 1.0, 1.0))
+    without_termination.load_state_dict(field.state_dict())
+    with torch.no_grad():
+        single_pass = field.render_training(origins, directions, directions, generator=None).clamp(0, 1)
+    blocked = without_termination.render(origins, directions, directions)
+    torch.testing.assert_close(blocked, single_pass, atol=1e-5, rtol=0)
+    # Early termination changes colours by at most the transmittance it drops.
+    terminated = radiance_map.render_rays(origins, directions)
+    assert float((terminated - blocked).abs().max()) < 5e-3
+
+
+def test_occupancy_skipping_keeps_colours(generator: torch.Generator) -> None:
+    radiance_map = _tiny_map(generator)
+    field = radiance_map.field
+    origins, directions = _rays(generator)
+    skipped = radiance_map.render_rays(origins, directions)
+    field.occupancy.fill_(True)
+    field.occupied_box.copy_(field.box)
+    full = radiance_map.render_rays(origins, directions)
+    # Skipped voxels have one-step opacity below occupancy_alpha = 1e-3 (dilated by one vertex).
+    assert float((skipped - full).abs().max()) < 2e-2
+
+
+def test_map_file_round_trip(generator: torch.Generator, tmp_path: Path) -> None:
+    radiance_map = _tiny_map(generator, ndc=True)
+    path = save_map(radiance_map, tmp_path / "tiny.locmap")
+    loaded = load_map(path, "cpu")
+    origins, directions = _rays(generator)
+    torch.testing.assert_close(loaded.render_rays(origins, directions), radiance_map.render_rays(origins, directions))
+    assert loaded.normalization == radiance_map.normalization and loaded.default_intrinsics == radiance_map.default_intrinsics
+    assert loaded.metadata == {"source": "test"}
+    torch.testing.assert_close(loaded.reference_poses(), radiance_map.reference_poses())
+    assert [p.name for p in tmp_path.iterdir()] == ["tiny.locmap"]
+
+
+def test_map_file_refusals(generator: torch.Generator, tmp_path: Path) -> None:
+    path = save_map(_tiny_map(generator), tmp_path / "good.locmap")
+    truncated = tmp_path / "truncated.locmap"
+    truncated.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(MapFileError, match="truncated"):
+        load_map(truncated)
+    foreign = tmp_path / "foreign.locmap"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    with pytest.raises(MapFileError, match="not a locnerf map"):
+        load_map(foreign)
+    archive = torch.load(path, weights_only=True)
+    newer = tmp_path / "newer.locmap"
+    torch.save({**archive, "version": 99}, newer)
+    with pytest.raises(MapFileError, match="version 99 is newer"):
+        load_map(newer)
+    with pytest.raises(FileNotFoundError, match="nothing.locmap"):
+        load_map(tmp_path / "nothing.locmap")
+
+
+def test_interrupted_save_leaves_nothing(generator: torch.Generator, tmp_path: Path) -> None:
+    radiance_map = _tiny_map(generator)
+
+    class Interrupted(GridMap):
+        def state(self) -> dict:
+            raise KeyboardInterrupt
+
+    broken = Interrupted(radiance_map.field, radiance_map.info)
+    with pytest.raises(KeyboardInterrupt):
+        save_map(broken, tmp_path / "map.locmap")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_trilinear_lookup_matches_grid_sample(generator: torch.Generator) -> None:
+    import torch.nn.functional as F
+
+    box = torch.tensor([[-1.0, -2.0, 0.0], [1.0, 2.0, 3.0]], dtype=torch.float64)
+    field = GridField(box, GridFieldConfig(voxels=7 * 13 * 10, features=2), background=None).double()
+    with torch.no_grad():
+        field.grid.copy_(torch.randn(field.grid.shape, generator=generator, dtype=torch.float64))
+    points = box[0] + (box[1] - box[0]) * (torch.rand(200, 3, generator=generator, dtype=torch.float64) * 1.2 - 0.1)
+    rx, ry, rz = field.resolution
+    volume = field.grid.detach().t().reshape(1, -1, rz, ry, rx)
+    normalised = (2.0 * (points - box[0]) / (box[1] - box[0]) - 1.0).view(1, 1, 1, -1, 3)
+    expected = F.grid_sample(volume, normalised, align_corners=True, padding_mode="border").view(volume.shape[1], -1).t()
+    torch.testing.assert_close(field.sample_grid(points), expected, atol=1e-12, rtol=0)

@@ -1,0 +1,105 @@
+"""Wire codec: round trips of every message type and every kind of bad payload."""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import numpy as np
+import pytest
+
+from locnerf.messages import codec, keys, schemas
+from locnerf.render.camera import PinholeIntrinsics
+
+INTRINSICS = PinholeIntrinsics(fx=20.0, fy=20.0, cx=2.0, cy=1.5, width=4, height=3)
+EYE = [[1.0, 0.0, 0.0, 0.5], [0.0, 1.0, 0.0, -1.0], [0.0, 0.0, 1.0, 2.0], [0.0, 0.0, 0.0, 1.0]]
+COV = [[0.01 if i == j else 0.0 for j in range(6)] for i in range(6)]
+
+EXAMPLES = [
+    schemas.Odometry(stamp=1.5, frame_id="odom", T_odom_body=EYE, covariance=COV),
+    schemas.PoseStamped(stamp=2.0, T_world_cam=EYE),
+    schemas.PoseEstimate(stamp=2.0, T_world_cam=EYE, covariance=COV, particle_count=3, spread=0.1, effective_sample_size=2.5, mode="coarse", epoch=1),
+    schemas.ParticleCloud(stamp=0.0, positions=[[0.0, 1.0, 2.0]], weights=[1.0]),
+    schemas.FilterStatus(stamp=0.0, state="running", rates_hz={"pose": 15.0}, update_latency_s=None, in_flight=0, workers=["a"], counters={"x": 1}),
+    schemas.UpdateRequest(
+        request_id="r", shard=0, epoch=1, generation=2, ids=[7], poses=[sum(EYE, [])], pixels=[[1.0, 2.0]], observed_rgb=[[0.1, 0.2, 0.3]], intrinsics=INTRINSICS
+    ),
+    schemas.UpdateResult(request_id="r", shard=0, worker_id="w", epoch=1, generation=2, ids=[7], log_likelihoods=[-math.inf], compute_seconds=0.1),
+    schemas.InitialPoseCommand(stamp=0.0, T_world_cam=EYE, covariance=COV),
+    schemas.GlobalLocalizationCommand(stamp=0.0),
+]
+
+
+@pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)
+def test_every_message_round_trips(message):
+    assert codec.decode(codec.encode(message), type(message)) == message
+
+
+def test_every_wire_type_has_an_example():
+    assert {type(m).__name__ for m in EXAMPLES} | {"ImageHeader"} == set(schemas.WIRE_TYPES)
+
+
+def _header(encoding: str = "rgb8") -> schemas.ImageHeader:
+    return schemas.ImageHeader(stamp=3.0, frame_id="cam", encoding=encoding, width=4, height=3, intrinsics=INTRINSICS)
+
+
+def test_image_round_trip_and_bgr_conversion():
+    pixels = np.arange(36, dtype=np.uint8).reshape(3, 4, 3)
+    header, decoded = codec.decode_image(codec.encode_image(_header(), pixels))
+    assert header == _header() and np.array_equal(decoded, pixels)
+    _, from_bgr = codec.decode_image(codec.encode_image(_header("bgr8"), pixels))
+    assert np.array_equal(from_bgr, pixels[..., ::-1])
+
+
+def _envelope(body: dict, version: int = codec.SCHEMA_VERSION, name: str = "Odometry") -> bytes:
+    return msgpack.packb({"v": version, "type": name, "body": body})
+
+
+@pytest.mark.parametrize(
+    ("payload", "kind"),
+    [
+        (b"\xc1garbage", "undecodable"),
+        (msgpack.packb([1, 2, 3]), "undecodable"),
+        (_envelope({"stamp": 0.0, "T_odom_body": EYE}, version=99), "schema_version"),
+        (_envelope({"stamp": 0.0, "T_world_cam": EYE}, name="PoseStamped"), "wrong_type"),
+        (_envelope({"stamp": 0.0, "T_odom_body": [[math.nan] * 4] * 4}), "invalid"),
+        (_envelope({"stamp": math.inf, "T_odom_body": EYE}), "invalid"),
+        (_envelope({"stamp": 0.0, "T_odom_body": EYE, "covariance": [[1.0] * 6] * 5 + [[-1.0] * 6]}), "invalid"),
+        (_envelope({"stamp": 0.0, "T_odom_body": EYE, "covariance": [[-1.0 if i == j else 0.0 for j in range(6)] for i in range(6)]}), "invalid"),
+    ],
+    ids=["garbage", "not-a-map", "version", "type", "nan-pose", "inf-stamp", "asymmetric-covariance", "negative-covariance"],
+)
+def test_bad_payloads_raise_decode_errors_naming_their_kind(payload, kind):
+    with pytest.raises(codec.DecodeError) as caught:
+        codec.decode(payload, schemas.Odometry)
+    assert caught.value.kind == kind
+
+
+def test_image_with_wrong_payload_size_or_encoding_is_rejected():
+    frame = codec.encode_image(_header(), np.zeros((3, 4, 3), np.uint8))
+    with pytest.raises(codec.DecodeError) as short:
+        codec.decode_image(frame[:-1])
+    assert short.value.kind == "image_size"
+    head = codec.encode(_header().model_copy(update={"encoding": "mono16"}))
+    with pytest.raises(codec.DecodeError) as encoding:
+        codec.decode_image(len(head).to_bytes(4, "big") + head + bytes(36))
+    assert encoding.value.kind == "image_encoding"
+    with pytest.raises(codec.DecodeError) as truncated:
+        codec.decode_image(b"\x00\x00\x10\x00abc")
+    assert truncated.value.kind == "undecodable"
+
+
+def test_image_header_must_match_its_intrinsics():
+    with pytest.raises(ValueError, match="does not match the intrinsics"):
+        schemas.ImageHeader(stamp=0.0, encoding="rgb8", width=5, height=3, intrinsics=INTRINSICS)
+
+
+def test_key_table_is_unique_and_parses_worker_tokens():
+    suffixes = [topic.suffix for topic in keys.TABLE]
+    assert len(suffixes) == len(set(suffixes))
+    token = keys.key("r1", keys.WORKER_ALIVE, worker_id="host-12", device="cuda")
+    assert token == "locnerf/r1/alive/worker/host-12/cuda"
+    assert keys.parse_worker_token(token) == ("host-12", "cuda")
+    with pytest.raises(ValueError, match="robot id"):
+        keys.key("a/b", keys.POSE)
+    assert "`filter/pose`" in keys.markdown_table()

@@ -1,0 +1,269 @@
+"""The filter loop without a transport: messages in, messages out, on the procedural world."""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import pytest
+import torch
+
+from locnerf.config import preset
+from locnerf.field.protocol import MapNormalization
+from locnerf.filter.localizer import Localizer, SearchRegion
+from locnerf.geometry.metrics import rotation_error_deg, translation_error
+from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
+from locnerf.messages import keys
+from locnerf.messages.codec import SCHEMA_VERSION, decode, encode, encode_image
+from locnerf.messages.schemas import (
+    FilterStatus,
+    GlobalLocalizationCommand,
+    ImageHeader,
+    InitialPoseCommand,
+    Odometry,
+    PoseEstimate,
+    UpdateRequest,
+)
+from locnerf.sim.world import ProceduralWorld
+from services.poses import convert_covariance, map_to_metric, metric_to_map
+from services.filter_loop.odometry_history import OdometryHistory
+from services.filter_loop.service import FilterLoop, FilterLoopConfig
+from services.nerf_worker.service import NerfWorker
+from services.sensor_ingest.events import GroundTruthEvent
+from services.sensor_ingest.service import event_message
+from services.sensor_ingest.world_source import WorldSourceConfig, world_events
+
+ROBOT = "r"
+
+
+@pytest.fixture(scope="module")
+def world() -> ProceduralWorld:
+    return ProceduralWorld.default()
+
+
+class Harness:
+    """A filter loop, a fake clock and workers answering on demand."""
+
+    def __init__(self, world: ProceduralWorld, config: FilterLoopConfig = FilterLoopConfig(), seed: int = 0) -> None:
+        bounds = world.camera_bounds()
+        self.region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
+        self.now = 0.0
+        localizer = Localizer(preset("llff"), torch.Generator().manual_seed(seed), region=self.region)
+        self.loop = FilterLoop(ROBOT, localizer, world.normalization, self.region, config, lambda: self.now)
+        self.world = world
+        self.requests: list[tuple[str, UpdateRequest]] = []
+        self.poses: list[PoseEstimate] = []
+
+    def add_worker(self, name: str, alive: bool = True) -> None:
+        self.collect(self.loop.worker_changed(keys.key(ROBOT, keys.WORKER_ALIVE, worker_id=name, device="cpu"), alive))
+
+    def collect(self, outgoing) -> None:
+        for key, payload in outgoing:
+            if "/update/request/" in key:
+                self.requests.append((key.rsplit("/", 1)[1], decode(payload, UpdateRequest)))
+            elif key.endswith("filter/pose"):
+                self.poses.append(decode(payload, PoseEstimate))
+
+    def answer(self, request: UpdateRequest) -> None:
+        self.collect(self.loop.handle_result(encode(NerfWorker(self.world, "w").handle(request))))
+
+    def feed(self, event) -> None:
+        key, payload = event_message(ROBOT, event)
+        self.collect(self.loop.handle_odometry(payload) if key.endswith("odom") else self.loop.handle_image(payload))
+
+    def tick(self) -> None:
+        self.collect(self.loop.tick())
+
+
+def test_global_localization_converges_and_tracks(world):
+    harness = Harness(world)
+    harness.add_worker("w1")
+    truth, errors = None, []
+    for event in world_events(world, WorldSourceConfig(duration=10.0), torch.Generator().manual_seed(1)):
+        harness.now = event.stamp
+        if isinstance(event, GroundTruthEvent):
+            truth = event.T_world_cam
+            continue
+        harness.feed(event)
+        harness.tick()
+        while harness.requests:
+            harness.answer(harness.requests.pop(0)[1])
+        if harness.poses and harness.poses[-1].stamp == event.stamp:
+            pose = torch.tensor(harness.poses[-1].T_world_cam, dtype=torch.float64)
+            errors.append((float(translation_error(pose, truth)), float(rotation_error_deg(pose, truth))))
+    assert errors[0][0] > 0.5, "the start should be lost (uniform over the room)"
+    tracked = errors[-45:]  # the last 3 s
+    assert max(e[0] for e in tracked) < 0.15 and max(e[1] for e in tracked) < 3.0, tracked
+    assert len(harness.poses) == 150  # one pose per odometry message
+
+
+def _odometry(stamp: float, pose: torch.Tensor) -> bytes:
+    return encode(Odometry(stamp=stamp, T_odom_body=pose.tolist()))
+
+
+def _image(world: ProceduralWorld, stamp: float, pose: torch.Tensor) -> bytes:
+    pixels = (world.render_image(pose) * 255).round().to(torch.uint8).numpy()
+    intrinsics = world.default_intrinsics
+    header = ImageHeader(stamp=stamp, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics)
+    return encode_image(header, pixels)
+
+
+def test_a_merge_whose_snapshot_predates_predictions_and_a_resample(world, generator):
+    harness = Harness(world, FilterLoopConfig(max_in_flight=2))
+    harness.add_worker("w1")
+    pose = world.sample_camera_pose(generator)
+    harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64)))
+    harness.loop.handle_image(_image(world, 0.0, pose))
+    harness.tick()
+    first = harness.requests.pop()[1]
+    for step in range(1, 6):  # several predictions while the first update is out
+        harness.collect(harness.loop.handle_odometry(_odometry(step / 15, torch.eye(4, dtype=torch.float64))))
+    harness.loop.handle_image(_image(world, 5 / 15, pose))
+    harness.tick()
+    second = harness.requests.pop()[1]
+    harness.answer(second)  # merged first: resamples, a new generation
+    assert harness.loop.localizer.particles.generation == first.generation + 1
+    harness.answer(first)
+    counters = harness.loop.counters()
+    assert counters["updates_merged"] == 2 and counters["stale_results"] == 0
+    assert harness.loop.localizer.particles.generation == first.generation + 2
+
+
+def test_a_result_from_before_a_reinitialisation_is_stale(world, generator):
+    harness = Harness(world)
+    harness.add_worker("w1")
+    harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator)))
+    harness.tick()
+    request = harness.requests.pop()[1]
+    harness.loop.handle_global_localization(encode(GlobalLocalizationCommand(stamp=0.0)))
+    harness.answer(request)
+    assert harness.loop.counters()["stale_results"] == 1 and harness.loop.counters()["updates_merged"] == 0
+
+
+def test_two_workers_share_an_update_and_a_vanished_workers_shard_is_resent(world, generator):
+    harness = Harness(world)
+    harness.add_worker("w1")
+    harness.add_worker("w2")
+    harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator)))
+    harness.tick()
+    assert sorted(worker for worker, _ in harness.requests) == ["w1", "w2"]
+    ids = sorted(i for _, request in harness.requests for i in request.ids)
+    assert ids == sorted(harness.loop.localizer.particles.ids.tolist())
+    (_, kept), (_, lost) = sorted(harness.requests, key=lambda item: item[0])
+    harness.requests.clear()
+    harness.add_worker("w2", alive=False)
+    assert [(worker, request.shard) for worker, request in harness.requests] == [("w1", lost.shard)]
+    harness.answer(kept)
+    harness.answer(harness.requests.pop()[1])
+    assert harness.loop.counters()["updates_merged"] == 1 and harness.loop.counters()["shards_retried"] == 1
+
+
+def test_an_unanswered_update_times_out_and_the_loop_goes_on(world, generator):
+    harness = Harness(world, FilterLoopConfig(update_timeout=2.0))
+    harness.add_worker("w1")
+    harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator)))
+    harness.tick()
+    harness.now = 2.5
+    harness.tick()
+    assert harness.loop.counters()["updates_timed_out"] == 1 and harness.loop.dispatcher.in_flight == 0
+    harness.collect(harness.loop.handle_odometry(_odometry(0.1, torch.eye(4, dtype=torch.float64))))
+    assert len(harness.poses) == 1
+
+
+def _raw(name: str, body: dict, version: int = SCHEMA_VERSION) -> bytes:
+    return msgpack.packb({"v": version, "type": name, "body": body})
+
+
+def test_bad_messages_are_counted_by_kind_and_dropped(world, generator):
+    harness = Harness(world, FilterLoopConfig(max_image_age=1.0))
+    loop = harness.loop
+    eye = torch.eye(4, dtype=torch.float64)
+    loop.handle_odometry(_odometry(10.0, eye))
+    loop.handle_odometry(b"\x00garbage")
+    loop.handle_odometry(_raw("Odometry", {"stamp": 11.0, "T_odom_body": [[math.nan] * 4] * 4}))
+    loop.handle_odometry(_raw("Odometry", {"stamp": 11.0, "T_odom_body": eye.tolist()}, version=SCHEMA_VERSION + 1))
+    loop.handle_odometry(_odometry(9.0, eye))
+    sheared = eye.clone()
+    sheared[0, 1] = 0.5
+    loop.handle_odometry(_odometry(11.0, sheared))
+    loop.handle_image(_image(world, 5.0, world.sample_camera_pose(generator)))
+    loop.handle_image(_image(world, 10.0, world.sample_camera_pose(generator))[:-3])
+    bad_covariance = [[-1.0 if i == j else 0.0 for j in range(6)] for i in range(6)]
+    loop.handle_initial_pose(_raw("InitialPoseCommand", {"stamp": 0.0, "T_world_cam": eye.tolist(), "covariance": bad_covariance}))
+    loop.handle_result(b"")
+    counters = loop.counters()
+    expected = {
+        "bad_undecodable": 2, "bad_invalid": 1, "bad_schema_version": 1, "bad_stamp_backwards": 1, "bad_invalid_odometry": 1,
+        "bad_image_too_old": 1, "bad_image_size": 1, "bad_command_invalid": 1,
+    }
+    assert {k: counters[k] for k in expected} == expected and counters["bad_messages"] == sum(expected.values())
+    harness.collect(loop.handle_odometry(_odometry(12.0, eye)))
+    assert len(harness.poses) == 1  # still running
+    status = decode(harness.loop.tick()[-1][1], FilterStatus)
+    assert status.counters["bad_messages"] == 9 and status.state == "running"
+
+
+def test_initial_pose_command_and_restart_from_the_saved_state(world, generator, tmp_path):
+    state = tmp_path / "filter_state.json"
+    config = FilterLoopConfig(start="wait", state_file=str(state))
+    first = Harness(world, config)
+    assert not first.loop.running
+    target = world.sample_camera_pose(generator)
+    covariance = torch.diag(torch.tensor([1e-4] * 3 + [1e-3] * 3, dtype=torch.float64))
+    first.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=target.tolist(), covariance=covariance.tolist())))
+    first.collect(first.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
+    published = torch.tensor(first.poses[-1].T_world_cam, dtype=torch.float64)
+    assert float(translation_error(published, target)) < 0.05
+    # The restarted filter resumes from the saved pose and applies the odometry since (1 m forward).
+    restarted = Harness(world, config, seed=1)
+    assert restarted.loop.running
+    moved = se3_exp(torch.tensor([0, 0, 0, 0, 0, -1.0], dtype=torch.float64))
+    restarted.collect(restarted.loop.handle_odometry(_odometry(3.0, moved)))
+    resumed = torch.tensor(restarted.poses[-1].T_world_cam, dtype=torch.float64)
+    assert float(translation_error(resumed, published @ moved)) < 0.05
+    assert restarted.poses[-1].spread < 0.2
+
+
+def test_odometry_stamps_far_in_the_past_start_a_new_odometry_session(world):
+    harness = Harness(world, FilterLoopConfig(odometry_horizon=5.0))
+    eye = torch.eye(4, dtype=torch.float64)
+    for stamp in (100.0, 99.0, 1.0, 1.1):
+        harness.collect(harness.loop.handle_odometry(_odometry(stamp, eye)))
+    counters = harness.loop.counters()
+    assert counters["odometry_restarts"] == 1 and counters["bad_stamp_backwards"] == 1 and len(harness.poses) == 3
+
+
+def test_odometry_history_interpolates_and_carries(generator):
+    history = OdometryHistory(horizon=5.0)
+    a = torch.eye(4, dtype=torch.float64)
+    b = se3_exp(torch.tensor([0.0, 0.2, 0.0, 1.0, 0.0, 0.0], dtype=torch.float64))
+    assert history.append(0.0, a) is None
+    torch.testing.assert_close(history.append(1.0, b), b)
+    half = se3_exp(torch.tensor([0.0, 0.1, 0.0, 0.5, 0.0, 0.0], dtype=torch.float64))
+    torch.testing.assert_close(history.pose_at(0.5), half)
+    torch.testing.assert_close(history.carry_to(0.5), pose_inverse(b) @ half)
+    assert history.carry_to(1.0) is None
+    with pytest.raises(ValueError, match="outside the odometry history"):
+        history.pose_at(-1.0)
+    with pytest.raises(ValueError, match="not after"):
+        history.append(1.0, b)
+
+
+def test_map_frame_conversions_invert_each_other(generator):
+    normalization = MapNormalization(
+        T_map_dataset=make_pose(se3_exp(torch.tensor([0.1, -0.2, 0.3, 0, 0, 0], dtype=torch.float64))[:3, :3], torch.tensor([0.5, 0.0, -1.0], dtype=torch.float64)).tolist(),
+        scale=0.25,
+    )
+    pose = se3_exp(torch.randn(6, dtype=torch.float64, generator=generator))
+    torch.testing.assert_close(map_to_metric(metric_to_map(pose, normalization), normalization), pose)
+    relative = pose_inverse(metric_to_map(pose, normalization)) @ metric_to_map(pose @ se3_exp(torch.tensor([0, 0, 0, 1.0, 0, 0], dtype=torch.float64)), normalization)
+    assert float(relative[:3, 3].norm()) == pytest.approx(0.25)
+    covariance = torch.eye(6, dtype=torch.float64)
+    assert convert_covariance(covariance, normalization, to_map=True).diagonal().tolist() == pytest.approx([1, 1, 1, 0.0625, 0.0625, 0.0625])
+
+
+def test_images_are_replaced_by_newer_ones_before_an_update_starts(world, generator):
+    harness = Harness(world)
+    for stamp in (0.0, 0.1):
+        harness.loop.handle_image(_image(world, stamp, world.sample_camera_pose(generator)))
+    assert harness.loop.counters()["images_replaced"] == 1

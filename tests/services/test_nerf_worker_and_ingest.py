@@ -1,0 +1,167 @@
+"""The worker against the measurement model it wraps; the ingest's events, odometry and pacing."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from locnerf.data.detect import read_dataset
+from locnerf.data.posed_images import PosedImages
+from locnerf.field.protocol import MapNormalization
+from locnerf.filter.measurement import observed_colours, particle_log_likelihoods, sample_pixels
+from locnerf.geometry.se3 import pose_inverse, se3_exp
+from locnerf.messages.codec import decode, decode_image
+from locnerf.messages.schemas import Odometry, UpdateRequest
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.sim.world import ProceduralWorld
+from services.nerf_worker.service import NerfWorker, RequestError
+from services.sensor_ingest.__main__ import IngestConfig, sensor_events
+from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
+from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent
+from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
+from services.sensor_ingest.service import Pacer, event_message
+from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
+from services.sensor_ingest.world_source import WorldSourceConfig, world_events
+
+
+@pytest.fixture(scope="module")
+def world() -> ProceduralWorld:
+    return ProceduralWorld.default()
+
+
+def _request(world: ProceduralWorld, generator: torch.Generator, count: int = 6) -> tuple[UpdateRequest, torch.Tensor, torch.Tensor, torch.Tensor]:
+    poses = torch.stack([world.sample_camera_pose(generator) for _ in range(count)]).float()
+    intrinsics = world.default_intrinsics
+    image = world.render_image(poses[0].double())
+    pixels = sample_pixels(intrinsics.height, intrinsics.width, 16, generator)
+    colours = observed_colours(image, pixels)
+    request = UpdateRequest(
+        request_id="r", shard=0, epoch=1, generation=0, ids=list(range(10, 10 + count)), poses=poses.reshape(count, 16).tolist(),
+        pixels=pixels.tolist(), observed_rgb=colours.tolist(), intrinsics=intrinsics,
+    )
+    return request, poses, pixels, colours
+
+
+def test_worker_result_equals_the_measurement_model(world, generator):
+    request, poses, pixels, colours = _request(world, generator)
+    result = NerfWorker(world, "w").handle(request)
+    expected = particle_log_likelihoods(poses, pixels, colours, world.default_intrinsics, world.render_rays)
+    assert result.ids == request.ids and (result.epoch, result.generation) == (1, 0)
+    torch.testing.assert_close(torch.tensor(result.log_likelihoods, dtype=torch.float64), expected)
+    assert int(torch.tensor(result.log_likelihoods).argmax()) == 0  # the particle at the true pose wins
+
+
+def test_worker_rejects_pixels_outside_the_image_and_non_rigid_poses(world, generator):
+    request, *_ = _request(world, generator, count=2)
+    with pytest.raises(RequestError, match="inside the 160×120 image"):
+        NerfWorker(world, "w").handle(request.model_copy(update={"pixels": [[500.0, 1.0]] * len(request.pixels)}))
+    sheared = [[2.0] + pose[1:] for pose in request.poses]
+    with pytest.raises(RequestError):
+        NerfWorker(world, "w").handle(request.model_copy(update={"poses": sheared}))
+
+
+def test_noiseless_odometry_reproduces_the_true_increments(generator):
+    odometry = SyntheticOdometry(OdometryNoiseConfig(rotation_noise=0, translation_noise=0, yaw_drift=0), generator)
+    truths = [torch.eye(4, dtype=torch.float64) for _ in range(3)]
+    truths[1][:3, 3] = torch.tensor([1.0, 0.0, 0.0])
+    truths[2][:3, 3] = torch.tensor([1.0, 2.0, 0.5])
+    out = [odometry.step(t, pose) for t, pose in zip((0.0, 0.1, 0.2), truths)]
+    torch.testing.assert_close(pose_inverse(out[0]) @ out[2], pose_inverse(truths[0]) @ truths[2])
+    with pytest.raises(ValueError, match="must increase"):
+        odometry.step(0.2, truths[2])
+
+
+def test_yaw_drift_accumulates_at_its_rate(generator):
+    rate = math.radians(2.0)
+    odometry = SyntheticOdometry(OdometryNoiseConfig(rotation_noise=0, translation_noise=0, yaw_drift=rate), generator)
+    for step in range(11):
+        last = odometry.step(step * 0.1, torch.eye(4, dtype=torch.float64))
+    assert math.isclose(math.atan2(last[0, 2], last[0, 0]), rate * 1.0, rel_tol=1e-9)
+
+
+def test_world_stream_is_time_ordered_with_the_configured_rates(world, generator):
+    config = WorldSourceConfig(duration=1.0, odometry_rate=15.0, camera_rate=5.0)
+    events = list(world_events(world, config, generator))
+    stamps = [e.stamp for e in events]
+    assert stamps == sorted(stamps)
+    counts = {kind: sum(isinstance(e, kind) for e in events) for kind in (OdometryEvent, GroundTruthEvent, ImageEvent)}
+    assert counts == {OdometryEvent: 15, GroundTruthEvent: 15, ImageEvent: 5}
+    key, payload = event_message("r", next(e for e in events if isinstance(e, ImageEvent)))
+    header, pixels = decode_image(payload)
+    assert key == "locnerf/r/sensors/image" and pixels.shape == (120, 160, 3) and header.intrinsics == world.default_intrinsics
+    key, payload = event_message("r", next(e for e in events if isinstance(e, OdometryEvent)))
+    assert key == "locnerf/r/sensors/odom" and decode(payload, Odometry).stamp == 0.0
+
+
+def test_pacer_waits_for_scaled_stamps():
+    now = [100.0]
+    sleeps: list[float] = []
+
+    def sleep(seconds: float) -> None:
+        sleeps.append(seconds)
+        now[0] += seconds
+
+    events = [GroundTruthEvent(t, torch.eye(4)) for t in (5.0, 5.5, 7.0)]
+    out = list(Pacer(speed=2.0, clock=lambda: now[0], sleep=sleep).paced(events))
+    assert out == events and sleeps == pytest.approx([0.25, 0.75])
+    assert list(Pacer(speed=0.0, clock=lambda: now[0], sleep=sleep).paced(events)) == events and len(sleeps) == 2
+
+
+def _sequence(count: int) -> PosedImages:
+    intrinsics = PinholeIntrinsics(fx=8.0, fy=8.0, cx=4.0, cy=3.0, width=8, height=6)
+    steps = torch.zeros(count, 6, dtype=torch.float64)
+    steps[:, 4] = torch.arange(count, dtype=torch.float64)  # 1 map unit along y per frame
+    normalization = MapNormalization(scale=2.0)  # 2 map units per metre
+    return PosedImages(
+        images=torch.rand(count, 6, 8, 3), T_world_cam=se3_exp(steps), intrinsics=intrinsics, near=0.1, far=5.0,
+        normalization=normalization, names=[str(i) for i in range(count)], scene_bounds=torch.tensor([[-1.0] * 3, [1.0] * 3]),
+    )
+
+
+def test_replay_interpolates_between_frames_in_metres(generator):
+    sequence = _sequence(3)
+    quiet = OdometryNoiseConfig(rotation_noise=0, translation_noise=0, yaw_drift=0)
+    events = list(replay_events(sequence, ReplaySourceConfig(frame_rate=2.0, odometry_rate=4.0, odometry=quiet), generator))
+    images = [e for e in events if isinstance(e, ImageEvent)]
+    truth = {e.stamp: e.T_world_cam for e in events if isinstance(e, GroundTruthEvent)}
+    assert [e.stamp for e in images] == [0.0, 0.5, 1.0] and images[1].pixels.shape == (6, 8, 3)
+    assert sorted(truth) == [0.0, 0.25, 0.5, 0.75, 1.0]
+    assert float(truth[0.75][1, 3]) == pytest.approx(0.75)  # frame 1.5 -> 1.5 map units -> 0.75 m
+    odometry = [e for e in events if isinstance(e, OdometryEvent)]
+    torch.testing.assert_close(pose_inverse(odometry[0].T_odom_body) @ odometry[-1].T_odom_body, pose_inverse(truth[0.0]) @ truth[1.0])
+
+
+def test_lego_orbit_replays_from_the_shared_data(shared_data, generator):
+    config = ReplaySourceConfig(path=str(shared_data / "nerf_synthetic" / "lego"), split="test", downscale=8, skip_missing=True)
+    sequence = read_dataset(config.path, split=config.split, downscale=config.downscale, skip_missing=config.skip_missing)
+    first = list(itertools.islice(replay_events(sequence, config, generator), 12))
+    assert isinstance(first[0], GroundTruthEvent) and any(isinstance(e, ImageEvent) and e.pixels.shape == (100, 100, 3) for e in first)
+
+
+def test_a_replay_without_a_path_is_refused():
+    with pytest.raises(ValueError, match="replay.path"):
+        sensor_events(IngestConfig(source="replay"))
+
+
+def test_a_video_file_becomes_stamped_rgb_frames(tmp_path):
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (32, 24))
+    for value in range(5):
+        frame = np.zeros((24, 32, 3), np.uint8)
+        frame[..., 2] = 50 * value  # red in BGR order
+        writer.write(frame)
+    writer.release()
+    intrinsics = PinholeIntrinsics(fx=30.0, fy=30.0, cx=16.0, cy=12.0, width=32, height=24)
+    events = list(camera_events(CameraSourceConfig(device=str(path), intrinsics=intrinsics)))
+    assert len(events) == 5 and [e.stamp for e in events] == sorted(e.stamp for e in events)
+    assert events[-1].stamp == pytest.approx(0.4, abs=0.051)
+    assert abs(int(events[4].pixels[..., 0].mean()) - 200) <= 8 and int(events[4].pixels[..., 2].mean()) <= 8  # now RGB
+    with pytest.raises(ValueError, match="expected 64×24"):
+        list(camera_events(CameraSourceConfig(device=str(path), intrinsics=intrinsics.model_copy(update={"width": 64}))))
+    with pytest.raises(ValueError, match="cannot be opened"):
+        list(camera_events(CameraSourceConfig(device=str(tmp_path / "missing.avi"), intrinsics=intrinsics)))

@@ -1,0 +1,92 @@
+"""Transport: key matching, inboxes, the in-memory bus, env configuration, and Zenoh on loopback."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from services.transport import Inbox, LatestSlot, TransportConfig, open_bus
+from services.transport.memory import MemoryBus, key_matches
+from tests.services.helpers import free_port, wait_until
+
+
+@pytest.mark.parametrize(
+    ("pattern", "key", "expected"),
+    [
+        ("a/b", "a/b", True),
+        ("a/*", "a/b", True),
+        ("a/*", "a/b/c", False),
+        ("a/**", "a/b/c", True),
+        ("a/**/c", "a/c", True),
+        ("a/*/c", "a/b/d", False),
+    ],
+)
+def test_key_matching(pattern, key, expected):
+    assert key_matches(pattern, key) is expected
+
+
+def test_inbox_drops_the_oldest_when_full_and_never_blocks():
+    inbox: Inbox[int] = Inbox(capacity=2)
+    for item in range(3):
+        inbox.put(item)
+    assert (inbox.get(0.0), inbox.get(0.0), inbox.get(0.0), inbox.dropped) == (1, 2, None, 1)
+
+
+def test_inbox_wakes_a_waiting_reader():
+    inbox: Inbox[str] = Inbox()
+    threading.Timer(0.05, inbox.put, args=("hello",)).start()
+    assert inbox.get(timeout=5.0) == "hello"
+
+
+def test_latest_slot_keeps_only_the_newest():
+    slot: LatestSlot[int] = LatestSlot()
+    slot.put(1)
+    slot.put(2)
+    assert (slot.take(), slot.take(), slot.replaced) == (2, None, 1)
+
+
+def test_memory_bus_delivers_and_tracks_liveliness():
+    bus = MemoryBus()
+    got, alive = [], []
+    bus.subscribe("x/**", lambda key, payload: got.append((key, payload)))
+    token = bus.declare_token("live/w1")
+    bus.watch_liveliness("live/*", lambda key, up: alive.append((key, up)))
+    bus.publish("x/y/z", b"1")
+    bus.publish("other", b"2")
+    token.close()
+    assert got == [("x/y/z", b"1")]
+    assert alive == [("live/w1", True), ("live/w1", False)]
+
+
+def test_transport_config_reads_the_environment():
+    config = TransportConfig().with_environment({"LOCNERF_ZENOH_MODE": "client", "LOCNERF_ZENOH_CONNECT": "tcp/zenohd:7447, tcp/b:1"})
+    assert config.mode == "client" and config.connect == ("tcp/zenohd:7447", "tcp/b:1")
+    with pytest.raises(ValueError, match="endpoint"):
+        TransportConfig(connect=("localhost",))
+
+
+def test_zenoh_bus_on_loopback_publishes_and_reports_liveliness():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = open_bus(TransportConfig(listen=(endpoint,)))
+    a = open_bus(TransportConfig(connect=(endpoint,)))
+    b = open_bus(TransportConfig(connect=(endpoint,)))
+    try:
+        got: Inbox[bytes] = Inbox()
+        alive: list[tuple[str, bool]] = []
+        b.subscribe("t/**", lambda _key, payload: got.put(payload))
+        b.watch_liveliness("live/**", lambda key, up: alive.append((key, up)))
+        token = a.declare_token("live/w")
+        wait_until(lambda: ("live/w", True) in alive, 20.0, "the token to be seen")
+        deadline = time.monotonic() + 20.0
+        received = None
+        while received is None and time.monotonic() < deadline:
+            a.publish("t/1", b"payload")
+            received = got.get(timeout=0.2)
+        assert received == b"payload"
+        token.close()
+        wait_until(lambda: ("live/w", False) in alive, 20.0, "the token to vanish")
+    finally:
+        for bus in (a, b, hub):
+            bus.close()
