@@ -14,6 +14,7 @@ import torch
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
 from locnerf.field.grid import GridFieldConfig
+from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import load_map, read_map_archive, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
@@ -58,6 +59,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--out", required=True, help="PNG to write")
     render.add_argument("--device", default="auto")
     render.set_defaults(func=run_render)
+
+    prune = commands.add_parser("prune", help="re-threshold a grid map's occupancy (faster renders, slightly lower PSNR)")
+    prune.add_argument("map", help="grid map file (rewritten in place unless --out)")
+    prune.add_argument("--occupancy-alpha", type=float, required=True, help="one-step opacity below which voxels are skipped")
+    prune.add_argument("--out", help="map file to write (default: MAP)")
+    prune.set_defaults(func=run_prune)
 
     info = commands.add_parser("info", help="describe a map file")
     info.add_argument("map", help="map file")
@@ -124,6 +131,17 @@ def run_render(args: argparse.Namespace) -> int:
     if not cv2.imwrite(str(args.out), pixels):
         raise ValueError(f"--out {args.out}: cannot write a PNG there")
     print(args.out)
+    return 0
+
+
+def run_prune(args: argparse.Namespace) -> int:
+    radiance_map = load_map(args.map, "cpu")
+    if not isinstance(radiance_map, GridMap):
+        raise ValueError(f"map {args.map}: prune applies to grid maps, this one is {radiance_map.kind}")
+    fraction = radiance_map.field.update_occupancy(args.occupancy_alpha)
+    radiance_map.metadata["occupancy_alpha"] = args.occupancy_alpha
+    save_map(radiance_map, args.out or args.map)
+    print(json.dumps({"out": args.out or args.map, "occupied_fraction": fraction}))
     return 0
 
 

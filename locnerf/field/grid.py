@@ -36,6 +36,7 @@ class GridFieldConfig(BaseModel):
     occupancy_alpha: float = Field(1e-3, gt=0, lt=1, description="A voxel is occupied when one step through it is at least this opaque.")
     termination_transmittance: float = Field(1e-3, gt=0, lt=1, description="Rays stop marching below this transmittance.")
     block_samples: int = Field(48, gt=0, description="Samples per marching block when rendering without gradients.")
+    coarse_factor: int = Field(8, ge=2, description="Voxels per cell edge of the coarse occupancy grid that clips rays before marching.")
 
 
 def grid_shape_for_box(box: torch.Tensor, voxels: int) -> tuple[int, int, int]:
@@ -123,19 +124,26 @@ class GridField(torch.nn.Module):
     def occupied(self, points: torch.Tensor) -> torch.Tensor:
         """(P,) bool: the nearest vertex of each point (P, 3) is marked occupied (and it lies in the box)."""
         rx, ry, rz = self.resolution
-        scale = torch.tensor([rx - 1, ry - 1, rz - 1], device=points.device, dtype=points.dtype)
-        index = torch.round((points - self.box[0]) / (self.box[1] - self.box[0]) * scale).long()
-        inside = ((index >= 0) & (index <= scale.long())).all(dim=-1)
-        index = torch.minimum(index.clamp_min(0), scale.long())
-        flat = (index[:, 2] * ry + index[:, 1]) * rx + index[:, 0]
-        return self.occupancy.view(-1)[flat] & inside
+        cells = torch.tensor([rx - 1, ry - 1, rz - 1], device=points.device, dtype=points.dtype)
+        # Vertex coordinates shifted by +0.5, so truncation towards zero rounds to the nearest vertex.
+        shifted = (points - self.box[0]) * (cells / (self.box[1] - self.box[0])) + 0.5
+        inside = ((shifted >= 0) & (shifted < cells + 1)).all(dim=-1)
+        index = torch.minimum(shifted.clamp_min(0), cells).to(torch.int32)
+        strides = torch.tensor([1, rx, rx * ry], device=points.device, dtype=torch.int32)
+        flat = (index * strides).sum(dim=-1, dtype=torch.int32)
+        return self.occupancy.view(-1)[flat.long()] & inside
 
     @torch.no_grad()
-    def update_occupancy(self) -> float:
-        """Recompute the occupancy grid from the densities (dilated by one vertex); returns the occupied fraction."""
+    def update_occupancy(self, occupancy_alpha: float | None = None) -> float:
+        """Recompute the occupancy grid from the densities (dilated by one vertex); returns the occupied fraction.
+
+        ``occupancy_alpha`` overrides the configured threshold (a saved map is pruned harder than
+        during training: faster renders for a small loss of PSNR).
+        """
         rx, ry, rz = self._resolution
+        threshold = self.config.occupancy_alpha if occupancy_alpha is None else occupancy_alpha
         alpha = 1.0 - torch.exp(-self.optical_depth(self.grid[:, 0].reshape(rz, ry, rx)))
-        dense = F.max_pool3d((alpha >= self.config.occupancy_alpha).float()[None, None], 3, stride=1, padding=1)[0, 0] > 0
+        dense = F.max_pool3d((alpha >= threshold).float()[None, None], 3, stride=1, padding=1)[0, 0] > 0
         self.occupancy = dense
         nonzero = dense.nonzero()
         if len(nonzero):
@@ -193,12 +201,49 @@ class GridField(torch.nn.Module):
         channels = channels.index_add(0, ray_index, sample_weights * shaded)
         return self._ray_colour(channels[:, :3], channels[:, 3:], weights.sum(dim=-1), view_directions)
 
+    def _coarse_occupancy(self) -> torch.Tensor:
+        """(Cz, Cy, Cx) bool: coarse cells holding an occupied vertex, dilated by one cell (cached)."""
+        key = (self.occupancy.data_ptr(), self.occupancy._version, self.occupancy.shape)
+        if getattr(self, "_coarse_key", None) != key:
+            factor = self.config.coarse_factor
+            cells = F.max_pool3d(self.occupancy.float()[None, None], factor, stride=factor, ceil_mode=True)
+            self._coarse = F.max_pool3d(cells, 3, stride=1, padding=1)[0, 0] > 0
+            self._coarse_key = key
+        return self._coarse
+
+    def _occupied_span(self, origins: torch.Tensor, directions: torch.Tensor, t_entry: torch.Tensor, t_exit: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Narrow each ray's [t_entry, t_exit] to the stretch that crosses occupied coarse cells.
+
+        Samples one point per coarse-cell length: every point of the ray is within half a cell of
+        a sample, so a ray through an occupied cell has a sample in that cell or a neighbour, and
+        the dilation marks the neighbours. Rays crossing no occupied cell get an empty span.
+        """
+        coarse = self._coarse_occupancy()
+        cz, cy, cx = coarse.shape
+        cell = self.voxel_size * self.config.coarse_factor
+        dt = cell / directions.norm(dim=-1)
+        count = int(((t_exit - t_entry) / dt).clamp_min(0).max().ceil().item()) + 1
+        t = t_entry[:, None] + torch.arange(count, device=origins.device)[None] * dt[:, None]
+        points = origins[:, None] + t[..., None] * directions[:, None]
+        index = ((points - self.box[0]) / cell).long()
+        inside = (t <= t_exit[:, None]) & (index >= 0).all(dim=-1) & (index[..., 0] < cx) & (index[..., 1] < cy) & (index[..., 2] < cz)
+        index = index.clamp_min(0)
+        flat = (index[..., 2].clamp_max(cz - 1) * cy + index[..., 1].clamp_max(cy - 1)) * cx + index[..., 0].clamp_max(cx - 1)
+        hit = coarse.view(-1)[flat] & inside
+        any_hit = hit.any(dim=-1)
+        first = torch.argmax(hit.int(), dim=-1)
+        last = count - 1 - torch.argmax(hit.flip(-1).int(), dim=-1)
+        start = torch.maximum(t_entry, t.gather(1, first[:, None])[:, 0] - dt)
+        stop = torch.minimum(t_exit, t.gather(1, last[:, None])[:, 0] + dt)
+        return start, torch.where(any_hit, stop, start)
+
     @torch.no_grad()
     def render(self, origins: torch.Tensor, directions: torch.Tensor, view_directions: torch.Tensor) -> torch.Tensor:
         """Colours of rays without gradients, marching in blocks with early termination: (R, 3) in [0, 1]."""
         rays = origins.shape[0]
         step = self.voxel_size * self.config.step_ratio
         t_entry, t_exit = ray_box_intersection(origins, directions, self.occupied_box)
+        t_entry, t_exit = self._occupied_span(origins, directions, t_entry, t_exit)
         dt = step / directions.norm(dim=-1)
         counts = ((t_exit - t_entry) / dt).clamp_min(0).ceil().long()
         log_transmittance = torch.zeros(rays, device=origins.device)
@@ -211,11 +256,10 @@ class GridField(torch.nn.Module):
         while len(active):
             k = start + offsets
             t = t_entry[active, None] + k[None] * dt[active, None]
-            valid = t < t_exit[active, None]
-            local_ray, sample = valid.nonzero(as_tuple=True)
-            points = origins[active[local_ray]] + t[local_ray, sample, None] * directions[active[local_ray]]
-            keep = self.occupied(points)
-            local_ray, sample, points = local_ray[keep], sample[keep], points[keep]
+            candidates = origins[active, None] + t[..., None] * directions[active, None]
+            keep = (t < t_exit[active, None]) & self.occupied(candidates.view(-1, 3)).view(t.shape)
+            local_ray, sample = keep.nonzero(as_tuple=True)
+            points = candidates[local_ray, sample]
             if len(points):
                 values = self.sample_grid(points)
                 depth = torch.zeros(len(active), block, device=origins.device).index_put((local_ray, sample), self.optical_depth(values[:, 0]))

@@ -41,6 +41,9 @@ class BuildConfig(BaseModel):
     coarse_fraction: float = Field(0.25, ge=0, lt=1, description="Progress fraction trained at the coarse (1/8 vertices) grid.")
     occupancy_warmup: int = Field(100, ge=0, description="Steps before empty-space skipping starts.")
     occupancy_every: int = Field(50, gt=0, description="Steps between occupancy-grid refreshes.")
+    final_occupancy_alpha: float = Field(
+        0.03, gt=0, lt=1, description="Occupancy threshold of the saved map (one-step opacity): prunes faint floaters so renders skip more."
+    )
     seed: int = Field(0, description="Seed of ray batches and sample jitter.")
 
 
@@ -110,13 +113,13 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
         loss.backward()
         optimizer.step()
         step += 1
-        mse = float(loss)
+        mse = float(loss.detach())
         smoothed_mse = mse if smoothed_mse is None else 0.95 * smoothed_mse + 0.05 * mse
         bar.update(1)
         if step % 20 == 0:
             bar.set_postfix(loss=f"{mse:.5f}", psnr=f"{psnr_from_mse(smoothed_mse):.2f}")
     bar.close()
-    field.update_occupancy()
+    field.update_occupancy(config.final_occupancy_alpha)
     seconds = time.monotonic() - start
     info.metadata.update(steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution))
     logger.info("built a grid map in %d steps, %.0f s", step, seconds)
