@@ -5,8 +5,8 @@ at every stamp the localizer predicts with the odometry increment (converted to 
 the map's scale), updates synchronously when an image was taken at that stamp, and the error of
 its estimate against the truth is recorded.
 
-Convergence: the first stamp from which both errors stay under the thresholds (default 5 map
-units·10⁻² and 5°) for ``hold`` seconds (default 2 s). Statistics "after convergence" cover the
+Convergence: the first stamp from which both errors stay under the thresholds (default 0.05 map
+units and 5°) for ``hold`` seconds (default 2 s). Statistics "after convergence" cover the
 stamps from convergence to the end of the phase (the kidnapping ends the first phase). Recovery
 after a kidnapping is convergence measured from the jump.
 """
@@ -176,14 +176,17 @@ def settle_tick(record: TrackingRecord, begin: int, end: int, criterion: Converg
             next_bad = i
             continue
         window_end = float(stamps[i]) + criterion.hold
-        fits = next_bad < end and float(stamps[next_bad]) > window_end or next_bad == end and float(stamps[end - 1]) >= window_end
+        if next_bad < end:
+            fits = float(stamps[next_bad]) > window_end  # the next failure comes after the window
+        else:
+            fits = float(stamps[end - 1]) >= window_end  # no failure before the end, and the window fits
         if fits:
             first = i
     return first
 
 
 def error_statistics(record: TrackingRecord, begin: int, end: int) -> dict[str, float]:
-    """Median, 95th percentile and maximum of both errors over indices [begin, end)."""
+    """Median (the lower middle value for an even count), 95th percentile and maximum of both errors over [begin, end)."""
     translation = record.translation_error[begin:end]
     rotation = record.rotation_error_deg[begin:end]
     return {
