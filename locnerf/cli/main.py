@@ -18,6 +18,8 @@ SUBCOMMAND_MODULES = (
     "locnerf.cli.up",
     "locnerf.cli.echo",
     "locnerf.cli.send",
+    "locnerf.cli.loadtest",
+    "locnerf.cli.bench_filter",
 )
 
 

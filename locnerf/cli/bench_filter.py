@@ -1,0 +1,135 @@
+"""``locnerf bench-filter``: micro-benchmarks of the filter's hot paths, one stable line per target.
+
+Targets (all at ``--particles`` N and ``--pixels`` M):
+
+* ``likelihood``: the worker's measurement step on a map (``--map world`` by default): rays for
+  N poses × M pixels, render, log-likelihoods;
+* ``predict``: eq. 4 for N particles (odometry increment and tangent noise);
+* ``resample_multinomial`` / ``resample_systematic``: N indices from N weights;
+* ``rotation_mean``: weighted geodesic L2 mean of N rotations;
+* ``estimate``: the full estimate (weighted mean pose and 6×6 covariance);
+* ``encode_request`` / ``decode_request``: an UpdateRequest of N poses and M pixels;
+* ``encode_result`` / ``decode_result``: an UpdateResult of N log-likelihoods;
+* ``encode_image`` / ``decode_image``: a frame of the map's default camera size.
+
+Each line is ``target  median_ms  p90_ms  calls_per_s`` over ``--repeats`` timed calls after one
+untimed call (``--json``: one JSON object per line with the same fields and the settings), so two
+runs can be compared line by line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from locnerf.cli.map_source import open_map
+from locnerf.devices import resolve_device
+from locnerf.filter.estimate import estimate_from_particles
+from locnerf.filter.measurement import particle_log_likelihoods, sample_pixels
+from locnerf.filter.motion import propagate_poses
+from locnerf.filter.particles import ParticleSet
+from locnerf.filter.resampling import multinomial_resample, systematic_resample
+from locnerf.geometry import se3_exp
+from locnerf.geometry.averaging import geodesic_rotation_mean
+from locnerf.messages.codec import decode, decode_image, encode, encode_image
+from locnerf.messages.schemas import ImageHeader, UpdateRequest, UpdateResult
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("bench-filter", help="micro-benchmarks of the filter hot paths (prediction, resampling, codec, ...)")
+    parser.add_argument("--particles", type=int, default=300, help="N")
+    parser.add_argument("--pixels", type=int, default=64, help="M")
+    parser.add_argument("--repeats", type=int, default=20, help="timed calls per target")
+    parser.add_argument("--map", default="world", help="map of the likelihood target: 'world' or a map file")
+    parser.add_argument("--device", default="auto", help="auto, cpu, cuda (likelihood and prediction)")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the services use 1)")
+    parser.add_argument("--targets", help="comma-separated subset of the targets (default: all)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", action="store_true", help="one JSON object per line")
+    parser.set_defaults(func=run)
+
+
+def time_calls(function: Callable[[], object], repeats: int, device: torch.device) -> list[float]:
+    """Seconds of ``repeats`` calls of ``function`` after one untimed call (synchronising CUDA)."""
+    function()
+    seconds = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+        seconds.append(time.perf_counter() - start)
+    return seconds
+
+
+def build_targets(particles: int, pixels: int, map_spec: str, device: torch.device, generator: torch.Generator) -> dict[str, Callable[[], object]]:
+    """Every target as a no-argument callable over inputs built here once."""
+    radiance_map = open_map(map_spec, device)
+    intrinsics = radiance_map.default_intrinsics
+    bounds = radiance_map.camera_bounds().double()
+    tangents = torch.randn(particles, 6, dtype=torch.float64, generator=generator) * torch.tensor([0.3, 0.3, 0.3, 0.0, 0.0, 0.0], dtype=torch.float64)
+    poses = se3_exp(tangents)
+    poses[:, :3, 3] = bounds[0] + torch.rand(particles, 3, dtype=torch.float64, generator=generator) * (bounds[1] - bounds[0])
+    pixel_uv = sample_pixels(intrinsics.height, intrinsics.width, pixels, generator).float()
+    observed = torch.rand(pixels, 3, generator=generator)
+    weights = torch.rand(particles, dtype=torch.float64, generator=generator)
+    weights /= weights.sum()
+    increment = se3_exp(torch.tensor([[0.01, 0.0, 0.0, 0.02, 0.0, 0.0]], dtype=torch.float64))[0]
+    sigma = torch.tensor([0.02] * 3 + [0.01] * 3, dtype=torch.float64)
+    particle_set = ParticleSet(poses=poses, log_weights=weights.log(), ids=torch.arange(particles), parent_ids=torch.arange(particles))
+    request = UpdateRequest(
+        request_id="bench", shard=0, epoch=0, generation=0, ids=list(range(particles)), poses=poses.reshape(-1, 16).tolist(),
+        pixels=pixel_uv.tolist(), observed_rgb=observed.tolist(), intrinsics=intrinsics,
+    )
+    result = UpdateResult(
+        request_id="bench", shard=0, worker_id="bench", epoch=0, generation=0, ids=list(range(particles)),
+        log_likelihoods=torch.randn(particles, dtype=torch.float64, generator=generator).tolist(), compute_seconds=0.0,
+    )
+    frame = np.random.default_rng(0).integers(0, 256, (intrinsics.height, intrinsics.width, 3), dtype=np.uint8)
+    header = ImageHeader(stamp=0.0, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics)
+    request_bytes, result_bytes, image_bytes = encode(request), encode(result), encode_image(header, frame)
+    poses_on_device, float_poses = poses.to(device), poses.float().to(device)
+    pixels_on_device, observed_on_device = pixel_uv.to(device), observed.to(device)
+    return {
+        "likelihood": lambda: particle_log_likelihoods(float_poses, pixels_on_device, observed_on_device, intrinsics, radiance_map.render_rays),
+        "predict": lambda: propagate_poses(poses_on_device, increment, sigma, generator),
+        "resample_multinomial": lambda: multinomial_resample(weights, particles, generator),
+        "resample_systematic": lambda: systematic_resample(weights, particles, generator),
+        "rotation_mean": lambda: geodesic_rotation_mean(poses[:, :3, :3], weights),
+        "estimate": lambda: estimate_from_particles(particle_set, "coarse"),
+        "encode_request": lambda: encode(request),
+        "decode_request": lambda: decode(request_bytes, UpdateRequest),
+        "encode_result": lambda: encode(result),
+        "decode_result": lambda: decode(result_bytes, UpdateResult),
+        "encode_image": lambda: encode_image(header, frame),
+        "decode_image": lambda: decode_image(image_bytes),
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    for name, value in (("--particles", args.particles), ("--pixels", args.pixels), ("--repeats", args.repeats), ("--threads", args.threads)):
+        if value < 1:
+            raise ValueError(f"{name} {value}: expected at least 1")
+    torch.set_num_threads(args.threads)
+    device = resolve_device(args.device)
+    generator = torch.Generator().manual_seed(args.seed)
+    targets = build_targets(args.particles, args.pixels, args.map, device, generator)
+    chosen = args.targets.split(",") if args.targets else list(targets)
+    unknown = sorted(set(chosen) - set(targets))
+    if unknown:
+        raise ValueError(f"--targets {unknown}: expected names among {sorted(targets)}")
+    settings = {"particles": args.particles, "pixels": args.pixels, "map": args.map, "device": str(device), "threads": args.threads}
+    if not args.json:
+        print(f"# {json.dumps(settings)}")
+        print(f"{'target':<22} {'median_ms':>10} {'p90_ms':>10} {'calls_per_s':>12}")
+    for name in chosen:
+        seconds = time_calls(targets[name], args.repeats, device)
+        median, p90 = float(np.median(seconds)), float(np.percentile(seconds, 90))
+        line = {"target": name, "median_ms": round(1000 * median, 4), "p90_ms": round(1000 * p90, 4), "calls_per_s": round(1.0 / median, 1)}
+        print(json.dumps(settings | line) if args.json else f"{name:<22} {line['median_ms']:>10} {line['p90_ms']:>10} {line['calls_per_s']:>12}", flush=True)
+    return 0

@@ -1,0 +1,211 @@
+"""``locnerf loadtest``: drive the services with a synthetic stream and measure them.
+
+Starts ingest, filter and K workers as local processes (as ``locnerf up`` does) on the procedural
+world (``--map world``) or a map file (``--map FILE``: filter and workers use the map, the stream
+is still the procedural world, so accuracy means nothing there, only load), waits for the first
+pose and ``--warmup`` seconds, then observes the bus for ``--duration`` seconds and reports rates,
+latencies, jitter, dropped frames vs lost messages and CPU/memory per process (JSON with
+``--json``, else a table). Comma-separated ``--particles``, ``--pixels`` or ``--workers`` make a
+sweep: one run per combination, a CSV and a PNG in ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import subprocess
+import time
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from locnerf.cli.services_link import transport
+from locnerf.cli.up import free_port, service_commands, stop_processes
+from locnerf.eval.loadtest_process import ProcessSample, process_usage, read_process_sample
+from locnerf.eval.loadtest_recorder import LoadRecorder
+from locnerf.eval.loadtest_sweep import plot_sweep, write_sweep_csv
+from locnerf.messages import keys
+from locnerf.messages.codec import DecodeError
+
+FIRST_POSE_TIMEOUT_S = 180.0
+
+
+class LoadCaseConfig(BaseModel):
+    """One load-test run: the load, the stream and how long to measure."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    particles: int = Field(300, ge=1, description="Particles of the filter (held: no reduction when annealing).")
+    pixels: int = Field(64, ge=1, description="Pixels per particle in each update (M).")
+    workers: int = Field(1, ge=1, description="NeRF worker processes sharing each update.")
+    camera_rate: float = Field(15.0, gt=0, description="Camera frames per second of the synthetic stream.")
+    odometry_rate: float = Field(15.0, gt=0, description="Odometry messages per second (the pose rate).")
+    duration: float = Field(20.0, gt=0, description="Measurement window, seconds.")
+    warmup: float = Field(3.0, ge=0, description="Seconds after the first pose that are not measured.")
+    settle: float = Field(
+        5.0, ge=0, description="Seconds after the window during which answers to its messages still count (the filter's update_timeout)."
+    )
+    map: str = Field("world", description="'world' (the procedural world) or a map file for the filter and workers.")
+    device: str = Field("auto", description="Device of the filter and workers: auto, cpu, cuda.")
+    seed: int = Field(0, description="Seed of the stream and the filter.")
+    robot_id: str = Field("loadtest", description="Robot id of the keys.")
+
+
+def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
+    """Write the localizer, ingest, filter and worker TOMLs of ``case`` into ``folder``; the
+    namespace ``locnerf.cli.up.service_commands`` expects."""
+    folder.mkdir(parents=True, exist_ok=True)
+    files = {
+        "localizer": f'preset = "llff"\nparticles = {case.particles}\n\n[measurement]\npixels = {case.pixels}\n\n'
+        f"[annealing]\nreduced_particles = {case.particles}\n",
+        "ingest": f'source = "world"\n\n[world]\nodometry_rate = {case.odometry_rate}\ncamera_rate = {case.camera_rate}\n',
+        "filter": f"map = {json.dumps(case.map)}\n",
+        "worker": f"map = {json.dumps(case.map)}\n",
+    }
+    paths = {}
+    for name, text in files.items():
+        paths[name] = folder / f"{name}.toml"
+        paths[name].write_text(text)
+    stream_seconds = case.warmup + case.duration + case.settle + 30.0
+    return argparse.Namespace(
+        robot_id=case.robot_id, device=case.device, workers=case.workers, localizer=str(paths["localizer"]), seed=case.seed,
+        filter_config=paths["filter"], worker_config=paths["worker"], ingest_config=paths["ingest"], duration=stream_seconds, speed=1.0,
+    )
+
+
+def _sample_all(processes: dict[str, int]) -> dict[str, ProcessSample]:
+    return {name: read_process_sample(pid) for name, pid in processes.items()}
+
+
+def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
+    """Run one load test; the report (see ``locnerf.eval.loadtest_recorder``) plus per-process CPU
+    and memory. Logs and configs go to ``folder``.
+
+    Raises:
+        RuntimeError: no pose within ``FIRST_POSE_TIMEOUT_S`` or a service exited early.
+    """
+    module = transport()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    bus = module.open_bus(module.TransportConfig(listen=(endpoint,)))
+    environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
+    inbox = module.Inbox(capacity=65536)
+    topics = {
+        "odometry": keys.key(case.robot_id, keys.ODOMETRY),
+        "image": keys.key(case.robot_id, keys.IMAGE),
+        "request": keys.key(case.robot_id, keys.UPDATE_REQUEST, worker_id="*"),
+        "result": keys.key(case.robot_id, keys.UPDATE_RESULT),
+        "pose": keys.key(case.robot_id, keys.POSE),
+        "status": keys.key(case.robot_id, keys.STATUS),
+    }
+    handles = [bus.subscribe(t, lambda _k, p, kind=kind: inbox.put((kind, p, time.monotonic()))) for kind, t in topics.items()]
+    recorder = LoadRecorder(odometry_rate=case.odometry_rate, camera_rate=case.camera_rate)
+    processes: dict[str, subprocess.Popen] = {}
+    namespace = _write_configs(case, folder)
+
+    def drain_until(deadline: float) -> None:
+        while time.monotonic() < deadline:
+            item = inbox.get(timeout=0.05)
+            if item is not None:
+                try:
+                    recorder.observe(*item)
+                except DecodeError as error:
+                    raise RuntimeError(f"bad {item[0]} message on the bus: {error}") from error
+            failed = [name for name, p in processes.items() if p.poll() is not None]
+            if failed:
+                raise RuntimeError(f"service(s) {failed} exited early: see the logs in {folder}")
+
+    try:
+        for name, command in service_commands(namespace).items():
+            with open(folder / f"{name}.log", "w") as log:
+                processes[name] = subprocess.Popen(command, env=environment, stdout=log, stderr=subprocess.STDOUT)
+        give_up = time.monotonic() + FIRST_POSE_TIMEOUT_S
+        while not recorder.poses:
+            if time.monotonic() > give_up:
+                raise RuntimeError(f"no pose within {FIRST_POSE_TIMEOUT_S} s: see the logs in {folder}")
+            drain_until(time.monotonic() + 0.2)
+        drain_until(time.monotonic() + case.warmup)
+        pids = {name: p.pid for name, p in processes.items()} | {"loadtest": os.getpid()}
+        start, before = time.monotonic(), _sample_all(pids)
+        drain_until(start + case.duration)
+        end, after = time.monotonic(), _sample_all(pids)
+        drain_until(end + case.settle)
+    finally:
+        stop_processes(processes)
+        for handle in handles:
+            handle.close()
+        bus.close()
+    report = recorder.report(start, end, observer_drops=inbox.dropped)
+    case_fields = case.model_dump(include={"particles", "pixels", "workers", "camera_rate", "odometry_rate", "map", "device"})
+    return case_fields | {"rays": case.particles * case.pixels} | report | {
+        "processes": {name: process_usage(before[name], after[name]) for name in pids}
+    }
+
+
+TABLE_ROWS = (
+    ("update rate", "update_hz", "Hz"), ("update latency p50", "update_latency_p50_ms", "ms"),
+    ("update latency p95", "update_latency_p95_ms", "ms"), ("update latency p99", "update_latency_p99_ms", "ms"),
+    ("worker compute p50", "worker_compute_p50_ms", "ms"), ("pose rate", "pose_rate_hz", "Hz"),
+    ("pose jitter p50", "pose_jitter_p50_ms", "ms"), ("pose jitter p99", "pose_jitter_p99_ms", "ms"),
+    ("odometry jitter p99 (source)", "odometry_jitter_p99_ms", "ms"),
+    ("odometry -> pose p50", "end_to_end_latency_p50_ms", "ms"), ("odometry -> pose p99", "end_to_end_latency_p99_ms", "ms"),
+    ("camera frames", "camera_frames", ""), ("dropped frames (newest-only)", "dropped_frames", ""), ("lost messages", "lost_messages", ""),
+)
+
+
+def format_table(report: dict[str, object]) -> str:
+    """The readable form of one report."""
+    title = f"{report['particles']} particles x {report['pixels']} pixels, {report['workers']} worker(s), map {report['map']}, {report['window_s']} s"
+    lines = [title] + [f"  {label:<30} {report[key]!s:>10} {unit}" for label, key, unit in TABLE_ROWS]
+    lines.append(f"  {'process':<12} {'cpu %':>7} {'rss MB':>8} {'peak MB':>8} {'threads':>7}")
+    for name, usage in report["processes"].items():
+        lines.append(f"  {name:<12} {usage['cpu_percent']:>7} {usage['rss_mb']:>8} {usage['peak_rss_mb']:>8} {usage['threads']:>7}")
+    return "\n".join(lines)
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated integers, e.g. 100,300") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected positive integers")
+    return values
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("loadtest", help="drive the services with a synthetic stream; rates, latency, jitter, losses, CPU")
+    parser.add_argument("--particles", type=_int_list, default=[300], help="particle count(s), comma-separated for a sweep")
+    parser.add_argument("--pixels", type=_int_list, default=[64], help="pixels per particle, comma-separated for a sweep")
+    parser.add_argument("--workers", type=_int_list, default=[1], help="worker count(s), comma-separated for a sweep")
+    parser.add_argument("--camera-rate", type=float, default=15.0, help="camera frames per second")
+    parser.add_argument("--odometry-rate", type=float, default=15.0, help="odometry messages per second")
+    parser.add_argument("--duration", type=float, default=20.0, help="measured seconds per case")
+    parser.add_argument("--warmup", type=float, default=3.0, help="seconds after the first pose not measured")
+    parser.add_argument("--map", default="world", help="'world' or a map file for the filter and workers")
+    parser.add_argument("--device", default="auto", help="auto, cpu, cuda")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("out/loadtest"), help="folder for logs, configs and the sweep's CSV/PNG")
+    parser.add_argument("--json", action="store_true", help="print JSON only (a list for a sweep)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    combinations = list(itertools.product(args.workers, args.particles, args.pixels))
+    reports = []
+    for workers, particles, pixels in combinations:
+        case = LoadCaseConfig(
+            particles=particles, pixels=pixels, workers=workers, camera_rate=args.camera_rate, odometry_rate=args.odometry_rate,
+            duration=args.duration, warmup=args.warmup, map=args.map, device=args.device, seed=args.seed,
+        )
+        report = run_case(case, args.out / f"w{workers}_p{particles}_m{pixels}")
+        reports.append(report)
+        if not args.json:
+            print(format_table(report), flush=True)
+    if len(reports) > 1:
+        files = {"csv": str(write_sweep_csv(reports, args.out / "sweep.csv")), "png": str(plot_sweep(reports, args.out / "sweep.png"))}
+        print(json.dumps({"cases": reports, "files": files}) if args.json else json.dumps(files), flush=True)
+    elif args.json:
+        print(json.dumps(reports[0]), flush=True)
+    return 0 if all(r["lost_messages"] == 0 for r in reports) else 1
