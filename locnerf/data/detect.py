@@ -22,11 +22,11 @@ def dataset_format(path: str | Path) -> str:
         raise FileNotFoundError(f"data set {path}: no such folder")
     if (path / "poses_bounds.npy").is_file():
         return "llff"
-    if (path / "transforms_train.json").is_file():
+    if any(path.glob("transforms_*.json")):
         return "nerf_synthetic"
     if (path / "transforms.json").is_file():
         return "nerfstudio"
-    raise ValueError(f"data set {path}: expected poses_bounds.npy (LLFF), transforms_train.json (NeRF-synthetic) or transforms.json (nerfstudio)")
+    raise ValueError(f"data set {path}: expected poses_bounds.npy (LLFF), transforms_<split>.json (NeRF-synthetic) or transforms.json (nerfstudio)")
 
 
 def read_dataset(path: str | Path, split: str = "train", downscale: int | None = None, skip_missing: bool = False) -> PosedImages:

@@ -85,7 +85,8 @@ def read_nerf_synthetic(
     height, width = images.shape[1:3]
     intrinsics = PinholeIntrinsics.from_fov(width, height, float(content["camera_angle_x"]))
     poses = np.stack([_frame_pose(frame, path, i) for i, frame in enumerate(frames)])
-    normalization = MapNormalization(near=SYNTHETIC_NEAR, far=SYNTHETIC_FAR)
+    # Blender scenes are z-up: the yaw axis of global localization is the world z axis.
+    normalization = MapNormalization(near=SYNTHETIC_NEAR, far=SYNTHETIC_FAR, up=(0.0, 0.0, 1.0))
     return PosedImages(
         images=torch.from_numpy(images),
         T_world_cam=torch.from_numpy(poses),

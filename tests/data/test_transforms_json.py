@@ -26,6 +26,15 @@ def test_nerf_synthetic_split_composited_and_downscaled(shared_data: Path) -> No
     assert float(views.images[:, 0, 0].min()) == pytest.approx(1.0)
     black = read_nerf_synthetic(lego, split="val", background="black", downscale=8, skip_missing=True)
     assert float(black.images[:, 0, 0].max()) == pytest.approx(0.0)
+    # Blender scenes are z-up; cameras sit on the upper hemisphere.
+    assert views.normalization.up == (0.0, 0.0, 1.0)
+    assert bool((views.T_world_cam[:, 2, 3] > 0).all())
+
+
+def test_a_folder_with_only_a_test_split_is_nerf_synthetic(shared_data: Path) -> None:
+    orbit = shared_data / "nerf_synthetic" / "lego_test_orbit"
+    assert dataset_format(orbit) == "nerf_synthetic"
+    assert len(read_dataset(orbit, split="test", downscale=8)) == 200
 
 
 def test_nerf_synthetic_missing_images_refused_or_skipped(shared_data: Path) -> None:
