@@ -15,12 +15,14 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.detect import read_dataset
+from locnerf.data.euroc import read_euroc
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus
 from locnerf.sim.world import ProceduralWorld
 from services.runtime import limit_torch_threads, load_service_config, stop_on_signals
 from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
+from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
 from services.sensor_ingest.events import SensorEvent
 from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
 from services.sensor_ingest.service import Pacer, event_message
@@ -36,13 +38,15 @@ class IngestConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     robot_id: str = Field("robot", description="Robot whose sensor keys are published.")
-    source: Literal["world", "replay", "camera"] = Field(
+    source: Literal["world", "replay", "euroc", "camera"] = Field(
         "world",
         description="Stream source: the procedural world along a trajectory, the replay of a posed image sequence, "
+        "a EuRoC MAV folder (its stamps kept, odometry synthesised from its ground truth), "
         "or a live camera / video file (images only; odometry comes from the robot on sensors/odom).",
     )
     world: WorldSourceConfig = Field(default_factory=WorldSourceConfig, description="Rates, duration and noise of the world stream.")
     replay: ReplaySourceConfig = Field(default_factory=ReplaySourceConfig, description="Sequence, rates and noise of the replay.")
+    euroc: EurocSourceConfig = Field(default_factory=EurocSourceConfig, description="EuRoC folder, camera, rates and noise.")
     camera: CameraSourceConfig = Field(default_factory=CameraSourceConfig, description="Capture device or video file and its calibration.")
     speed: float = Field(1.0, ge=0, description="Sensor seconds per wall second (0: as fast as possible).")
     seed: int = Field(0, description="Seed of the noise draws.")
@@ -85,6 +89,11 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
         return world_events(ProceduralWorld.default(), config.world, generator)
     if config.source == "camera":
         return camera_events(config.camera)
+    if config.source == "euroc":
+        if not config.euroc.path:
+            raise ValueError("source = 'euroc' needs euroc.path: the folder holding mav0/")
+        sequence = read_euroc(config.euroc.path, config.euroc.camera, config.euroc.groundtruth or None)
+        return euroc_events(sequence, config.euroc, generator)
     if not config.replay.path:
         raise ValueError("source = 'replay' needs replay.path: the data-set folder to replay")
     replay = config.replay

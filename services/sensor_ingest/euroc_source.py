@@ -1,0 +1,70 @@
+"""A EuRoC MAV folder as the sensor stream: its camera frames at their own stamps, odometry at 15 Hz.
+
+Images keep their EuRoC stamps (seconds since the epoch) and are undistorted with the camera's
+radial-tangential model (grey frames become three equal channels). locnerf runs no VIO of its own,
+so the odometry is synthesised from the ground-truth camera trajectory (body pose · ``T_BS``,
+interpolated geodesically) with the VIO-like noise and drift of :mod:`.synthetic_odometry`; the
+ground truth is published beside it. IMU samples are not read. Only frames inside the ground
+truth's time span are sent.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from locnerf.data.euroc import EurocSequence
+from locnerf.geometry.frames import opencv_to_opengl
+from services.poses import interpolate_pose
+from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
+from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
+
+
+class EurocSourceConfig(BaseModel):
+    """Which EuRoC folder to stream and how."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    path: str = Field("", description="Folder holding mav0/ (the EuRoC ASL layout).")
+    camera: str = Field("cam0", description="Camera folder under mav0/.")
+    groundtruth: str = Field("", description="Ground-truth file (ASL data.csv or TUM .txt); empty: found in the folder.")
+    downscale: float = Field(1.0, ge=1, description="Image size divisor (area resize after undistortion).")
+    odometry_rate: float = Field(15.0, gt=0, description="Odometry (and ground-truth) messages per second.")
+    odometry: OdometryNoiseConfig = Field(default_factory=OdometryNoiseConfig, description="VIO noise and drift.")
+
+
+def camera_trajectory_at(sequence: EurocSequence, stamps: np.ndarray) -> torch.Tensor:
+    """Ground-truth camera poses (S, 4, 4) float64, OpenGL camera axes, at stamps inside the truth's span."""
+    truth = sequence.truth_stamps
+    after = np.clip(np.searchsorted(truth, stamps, side="right"), 1, len(truth) - 1)
+    poses = []
+    for stamp, index in zip(stamps, after):
+        fraction = (stamp - truth[index - 1]) / (truth[index] - truth[index - 1])
+        body = interpolate_pose(sequence.T_world_body[index - 1], sequence.T_world_body[index], float(fraction))
+        poses.append(body @ sequence.camera.T_body_cam)
+    return opencv_to_opengl(torch.stack(poses))
+
+
+def euroc_events(sequence: EurocSequence, config: EurocSourceConfig, generator: torch.Generator) -> Iterator[SensorEvent]:
+    """Time-ordered ground truth and odometry (same stamps, truth first) and image events."""
+    begin = max(sequence.truth_stamps[0], sequence.image_stamps[0])
+    end = min(sequence.truth_stamps[-1], sequence.image_stamps[-1])
+    period = 1.0 / config.odometry_rate
+    odometry_stamps = begin + period * np.arange(int(math.floor((end - begin) / period)) + 1)
+    frames = np.flatnonzero((sequence.image_stamps >= begin) & (sequence.image_stamps <= end))
+    if len(frames) == 0:
+        raise ValueError(f"{sequence.root}: no image lies inside the ground truth's time span")
+    truth = camera_trajectory_at(sequence, odometry_stamps)
+    intrinsics = sequence.camera.intrinsics.scaled(1.0 / config.downscale)
+    odometry = SyntheticOdometry(config.odometry, generator)
+    timeline = sorted([(float(s), 0, i) for i, s in enumerate(odometry_stamps)] + [(float(sequence.image_stamps[k]), 1, int(k)) for k in frames])
+    for stamp, is_frame, index in timeline:
+        if is_frame:
+            yield ImageEvent(stamp, sequence.read_image(index, config.downscale), intrinsics)
+            continue
+        yield GroundTruthEvent(stamp, truth[index])
+        yield OdometryEvent(stamp, odometry.step(stamp, truth[index]))
