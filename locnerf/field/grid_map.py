@@ -8,13 +8,12 @@ import torch
 
 from locnerf.field.grid import GridField, GridFieldConfig
 from locnerf.field.map_info import MapInfo
-from locnerf.field.protocol import MapNormalization
-from locnerf.render.camera import PinholeIntrinsics
+from locnerf.field.stored_map import StoredMap
 
 GRID_KIND = "grid"
 
 
-class GridMap:
+class GridMap(StoredMap):
     """Renders world-frame rays with the grid field (warping them to NDC first for NDC maps)."""
 
     kind = GRID_KIND
@@ -32,26 +31,6 @@ class GridMap:
     @property
     def device(self) -> torch.device:
         return self.field.grid.device
-
-    @property
-    def normalization(self) -> MapNormalization:
-        return self.info.normalization
-
-    @property
-    def default_intrinsics(self) -> PinholeIntrinsics:
-        return self.info.intrinsics
-
-    @property
-    def metadata(self) -> dict[str, Any]:
-        """Provenance and training figures."""
-        return self.info.metadata
-
-    def camera_bounds(self) -> torch.Tensor:
-        return self.info.camera_bounds()
-
-    def reference_poses(self) -> torch.Tensor:
-        """(K, 4, 4) float64 camera-to-world poses of the images the map was built from."""
-        return self.info.reference_poses
 
     def render_rays(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         """rgb (R, 3) in [0, 1] of world-frame rays: origins (R, 3), directions (R, 3)."""

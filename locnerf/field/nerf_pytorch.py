@@ -16,8 +16,7 @@ import torch
 
 from locnerf.field.encoding import frequency_encoding
 from locnerf.field.map_info import MapInfo
-from locnerf.field.protocol import MapNormalization
-from locnerf.render.camera import PinholeIntrinsics
+from locnerf.field.stored_map import StoredMap
 
 NERF_PYTORCH_KIND = "nerf_pytorch"
 POINT_FREQUENCIES, VIEW_FREQUENCIES = 10, 4
@@ -93,7 +92,7 @@ def sample_pdf(bins: torch.Tensor, weights: torch.Tensor, count: int) -> torch.T
     return bin_below + (u - cdf_below) / denominator * (bin_above - bin_below)
 
 
-class NerfPytorchMap:
+class NerfPytorchMap(StoredMap):
     """A RadianceMap running nerf-pytorch's coarse and fine MLPs."""
 
     kind = NERF_PYTORCH_KIND
@@ -112,26 +111,6 @@ class NerfPytorchMap:
     @property
     def device(self) -> torch.device:
         return next(self.coarse.parameters()).device
-
-    @property
-    def normalization(self) -> MapNormalization:
-        return self.info.normalization
-
-    @property
-    def default_intrinsics(self) -> PinholeIntrinsics:
-        return self.info.intrinsics
-
-    @property
-    def metadata(self) -> dict[str, Any]:
-        """Provenance of the map."""
-        return self.info.metadata
-
-    def camera_bounds(self) -> torch.Tensor:
-        return self.info.camera_bounds()
-
-    def reference_poses(self) -> torch.Tensor:
-        """(K, 4, 4) float64 poses of the images the map was built from."""
-        return self.info.reference_poses
 
     def _query(self, network: NerfMLP, origins: torch.Tensor, directions: torch.Tensor, views: torch.Tensor, depths: torch.Tensor) -> torch.Tensor:
         points = origins[:, None] + depths[..., None] * directions[:, None]
