@@ -7,19 +7,25 @@ twice as fast on CPU as ``grid_sample``'s 3-D backward): density (softplus with 
 that the initial opacity is tiny, as in DVGO), diffuse colour (sigmoid) and F view features. The
 view-dependent part is deferred: the composited features of a ray and its direction go through a
 tiny MLP once per ray (as in SNeRG), so the per-sample cost is one trilinear lookup. An occupancy
-grid (dilated) skips empty space; rays march in blocks and stop once their transmittance is spent.
+grid (dilated) marks where density is; the no-gradient renderer jumps over empty space with a
+distance grid built from it and stops rays once their transmittance is spent (``grid_march``).
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 import torch.nn.functional as F
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.field.encoding import frequency_encoding
+from locnerf.field.grid_march import SKIP_DISTANCE_CAP, SkipTable, chebyshev_distance, march
 from locnerf.render.volume import ray_box_intersection, weights_from_optical_depth
+
+RETIRED_CONFIG_FIELDS = ("block_samples", "coarse_factor")
+"""Render tuning that older map files store in the field config (now constants of grid_march)."""
 
 
 class GridFieldConfig(BaseModel):
@@ -35,13 +41,33 @@ class GridFieldConfig(BaseModel):
     initial_alpha: float = Field(1e-4, gt=0, lt=1, description="Opacity of one step at initialisation (sets the density shift).")
     occupancy_alpha: float = Field(1e-3, gt=0, lt=1, description="A voxel is occupied when one step through it is at least this opaque.")
     termination_transmittance: float = Field(1e-3, gt=0, lt=1, description="Rays stop marching below this transmittance.")
-    block_samples: int = Field(48, gt=0, description="Samples per marching block when rendering without gradients.")
-    coarse_factor: int = Field(8, ge=2, description="Voxels per cell edge of the coarse occupancy grid that clips rays before marching.")
+    render_step_factor: float = Field(2.0, ge=1, description="No-gradient renders sample every render_step_factor · step_ratio voxels (opacity per sample scaled to match).")
+    voxel_aspect: tuple[float, float, float] = Field(
+        (1.0, 1.0, 1.0),
+        description="Voxel edge along (x, y, z) relative to each other; (1, 1, 1) is cubic. Forward-facing (NDC) maps use a coarse"
+        " NDC depth (z), which is already disparity-spaced. Steps and optical depth are in voxel units, so per axis.",
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _drop_retired_fields(cls, data: Any) -> Any:
+        """Map files written before the skip marcher carry its predecessor's tuning; it is ignored."""
+        if isinstance(data, dict):
+            return {key: value for key, value in data.items() if key not in RETIRED_CONFIG_FIELDS}
+        return data
 
 
-def grid_shape_for_box(box: torch.Tensor, voxels: int) -> tuple[int, int, int]:
-    """(Rx, Ry, Rz) vertices per axis with cubic voxels and about ``voxels`` vertices in all."""
-    extent = (box[1] - box[0]).double()
+def grid_shape_for_box(box: torch.Tensor, voxels: int, aspect: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> tuple[int, int, int]:
+    """(Rx, Ry, Rz) vertices per axis for about ``voxels`` vertices in all.
+
+    Args:
+        box: (2, 3) low and high corners.
+        voxels: target vertex count.
+        aspect: voxel edge along (x, y, z) relative to each other, all > 0.
+    """
+    if len(aspect) != 3 or min(aspect) <= 0:
+        raise ValueError(f"voxel aspect {aspect}: expected three positive edge ratios")
+    extent = (box[1] - box[0]).double() / torch.tensor(aspect, dtype=torch.float64)
     size = (float(extent.prod()) / voxels) ** (1.0 / 3.0)
     return tuple(max(2, int(math.ceil(float(e) / size)) + 1) for e in extent)  # type: ignore[return-value]
 
@@ -58,7 +84,7 @@ class GridField(torch.nn.Module):
         self.register_buffer("box", box.float().clone())
         self.register_buffer("background", torch.tensor(background if background is not None else (0.0, 0.0, 0.0)))
         self.has_background = background is not None
-        rx, ry, rz = grid_shape_for_box(box, config.voxels)
+        rx, ry, rz = grid_shape_for_box(box, config.voxels, config.voxel_aspect)
         channels = 4 + config.features
         self._resolution = (rx, ry, rz)
         self.grid = torch.nn.Parameter(torch.zeros(rx * ry * rz, channels))
@@ -84,6 +110,20 @@ class GridField(torch.nn.Module):
         return float((self.box[1, 0] - self.box[0, 0]) / (self.resolution[0] - 1))
 
     @property
+    def voxel_sizes(self) -> torch.Tensor:
+        """(3,) voxel edges along x, y, z in field units."""
+        cells = torch.tensor(self.resolution, device=self.box.device, dtype=self.box.dtype) - 1
+        return (self.box[1] - self.box[0]) / cells
+
+    def ray_parameter_per_voxel(self, directions: torch.Tensor) -> torch.Tensor:
+        """(R,) ray-parameter increment that advances one voxel unit along rays ``directions`` (R, 3).
+
+        Distances are measured in voxels (each axis scaled by its voxel edge), so anisotropic grids
+        take per-axis steps: ``1 / ‖d ⊘ voxel_sizes‖`` (``voxel_size / ‖d‖`` for cubic voxels).
+        """
+        return 1.0 / (directions / self.voxel_sizes).norm(dim=-1)
+
+    @property
     def density_shift(self) -> float:
         """Added to raw density before softplus so that a zero grid has opacity ``initial_alpha`` per step."""
         alpha = self.config.initial_alpha
@@ -103,18 +143,23 @@ class GridField(torch.nn.Module):
 
     def sample_grid(self, points: torch.Tensor) -> torch.Tensor:
         """Trilinear grid values: points (P, 3) -> (P, 4 + F) raw channels (clamped to the box)."""
+        cells = torch.tensor([r - 1 for r in self._resolution], device=points.device, dtype=points.dtype)
+        return self.interpolate_vertices((points - self.box[0]) * (cells / (self.box[1] - self.box[0])))
+
+    def interpolate_vertices(self, position: torch.Tensor) -> torch.Tensor:
+        """Trilinear grid values at vertex coordinates: position (P, 3) (x, y, z; clamped to the grid) -> (P, 4 + F)."""
         rx, ry, rz = self._resolution
-        cells = torch.tensor([rx - 1, ry - 1, rz - 1], device=points.device, dtype=points.dtype)
-        position = ((points - self.box[0]) / (self.box[1] - self.box[0]) * cells).clamp_min(0.0)
-        position = torch.minimum(position, cells)
+        device = position.device
+        cells = torch.tensor([rx - 1, ry - 1, rz - 1], device=device, dtype=position.dtype)
+        position = torch.clamp(position, torch.zeros_like(cells), cells)
         corner = torch.minimum(position.floor(), cells - 1)
-        fraction = position - corner
-        corner = corner.long()
-        base = (corner[:, 2] * ry + corner[:, 1]) * rx + corner[:, 0]
-        offsets = torch.tensor([(dz * ry + dy) * rx + dx for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)], device=points.device)
-        bits = torch.tensor([[dx, dy, dz] for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)], device=points.device, dtype=points.dtype)
-        # weight of corner (dx, dy, dz) = Π_axis (f if bit else 1 - f)
-        weights = (bits * fraction[:, None] + (1 - bits) * (1 - fraction[:, None])).prod(dim=-1)
+        fx, fy, fz = (position - corner).t().contiguous()
+        base = (corner.long() * torch.tensor([1, rx, rx * ry], device=device)).sum(dim=-1)
+        offsets = torch.tensor([(dz * ry + dy) * rx + dx for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)], device=device)
+        # weight of corner (dx, dy, dz) = Π_axis (f if bit else 1 - f), in the order of ``offsets``
+        gx, gy, gz = 1.0 - fx, 1.0 - fy, 1.0 - fz
+        zy = (gz * gy, gz * fy, fz * gy, fz * fy)
+        weights = torch.stack([w * x for w in zy for x in (gx, fx)], dim=-1)
         return F.embedding_bag(base[:, None] + offsets, self.grid, per_sample_weights=weights, mode="sum")
 
     def optical_depth(self, raw_density: torch.Tensor) -> torch.Tensor:
@@ -173,10 +218,8 @@ class GridField(torch.nn.Module):
         Every ray is sampled at once with a random (stratified) offset from ``generator``;
         ``view_directions`` (R, 3) are the world-frame directions the decoder sees.
         """
-        step = self.voxel_size * self.config.step_ratio
         t_entry, t_exit = ray_box_intersection(origins, directions, self.occupied_box)
-        norm = directions.norm(dim=-1)
-        dt = step / norm
+        dt = self.config.step_ratio * self.ray_parameter_per_voxel(directions)
         count = int(((t_exit - t_entry) / dt).clamp_min(0).max().ceil().item()) + 1
         jitter = torch.rand(origins.shape[0], 1, generator=generator, device=origins.device) if generator is not None else 0.5
         t = t_entry[:, None] + (torch.arange(count, device=origins.device)[None] + jitter) * dt[:, None]
@@ -201,75 +244,43 @@ class GridField(torch.nn.Module):
         channels = channels.index_add(0, ray_index, sample_weights * shaded)
         return self._ray_colour(channels[:, :3], channels[:, 3:], weights.sum(dim=-1), view_directions)
 
-    def _coarse_occupancy(self) -> torch.Tensor:
-        """(Cz, Cy, Cx) bool: coarse cells holding an occupied vertex, dilated by one cell (cached)."""
+    def _skip_table(self) -> SkipTable:
+        """Skip table of the occupancy for the no-gradient renderer (cached per occupancy state)."""
         key = (self.occupancy.data_ptr(), self.occupancy._version, self.occupancy.shape)
-        if getattr(self, "_coarse_key", None) != key:
-            factor = self.config.coarse_factor
-            cells = F.max_pool3d(self.occupancy.float()[None, None], factor, stride=factor, ceil_mode=True)
-            self._coarse = F.max_pool3d(cells, 3, stride=1, padding=1)[0, 0] > 0
-            self._coarse_key = key
-        return self._coarse
+        if getattr(self, "_skip_key", None) != key:
+            self._skip = SkipTable(chebyshev_distance(self.occupancy, SKIP_DISTANCE_CAP))
+            self._skip_key = key
+        return self._skip
 
-    def _occupied_span(self, origins: torch.Tensor, directions: torch.Tensor, t_entry: torch.Tensor, t_exit: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Narrow each ray's [t_entry, t_exit] to the stretch that crosses occupied coarse cells.
-
-        Samples one point per coarse-cell length: every point of the ray is within half a cell of
-        a sample, so a ray through an occupied cell has a sample in that cell or a neighbour, and
-        the dilation marks the neighbours. Rays crossing no occupied cell get an empty span.
-        """
-        coarse = self._coarse_occupancy()
-        cz, cy, cx = coarse.shape
-        cell = self.voxel_size * self.config.coarse_factor
-        dt = cell / directions.norm(dim=-1)
-        count = int(((t_exit - t_entry) / dt).clamp_min(0).max().ceil().item()) + 1
-        t = t_entry[:, None] + torch.arange(count, device=origins.device)[None] * dt[:, None]
-        points = origins[:, None] + t[..., None] * directions[:, None]
-        index = ((points - self.box[0]) / cell).long()
-        inside = (t <= t_exit[:, None]) & (index >= 0).all(dim=-1) & (index[..., 0] < cx) & (index[..., 1] < cy) & (index[..., 2] < cz)
-        index = index.clamp_min(0)
-        flat = (index[..., 2].clamp_max(cz - 1) * cy + index[..., 1].clamp_max(cy - 1)) * cx + index[..., 0].clamp_max(cx - 1)
-        hit = coarse.view(-1)[flat] & inside
-        any_hit = hit.any(dim=-1)
-        first = torch.argmax(hit.int(), dim=-1)
-        last = count - 1 - torch.argmax(hit.flip(-1).int(), dim=-1)
-        start = torch.maximum(t_entry, t.gather(1, first[:, None])[:, 0] - dt)
-        stop = torch.minimum(t_exit, t.gather(1, last[:, None])[:, 0] + dt)
-        return start, torch.where(any_hit, stop, start)
+    def _shade(self, position: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Render-step optical depth (P,) and composited channels (P, 3 + F) at vertex coordinates (P, 3)."""
+        values = self.interpolate_vertices(position)
+        values[:, 1:4].sigmoid_()
+        return self.optical_depth(values[:, 0]) * self.config.render_step_factor, values[:, 1:]
 
     @torch.no_grad()
     def render(self, origins: torch.Tensor, directions: torch.Tensor, view_directions: torch.Tensor) -> torch.Tensor:
-        """Colours of rays without gradients, marching in blocks with early termination: (R, 3) in [0, 1]."""
-        rays = origins.shape[0]
-        step = self.voxel_size * self.config.step_ratio
+        """Colours of rays without gradients: (R, 3) each in -> rgb (R, 3) in [0, 1].
+
+        Samples the lattice t_entry + (k + ½)·δt through the occupied box, as :meth:`render_training`
+        does without jitter but with δt ``render_step_factor`` times longer (and σ·δ to match); empty
+        stretches are jumped over with the Chebyshev distance grid and rays stop once their
+        transmittance is spent (:func:`grid_march.march`).
+        """
+        cells = torch.tensor([r - 1 for r in self._resolution], device=origins.device, dtype=origins.dtype)
+        to_vertices = cells / (self.box[1] - self.box[0])
         t_entry, t_exit = ray_box_intersection(origins, directions, self.occupied_box)
-        t_entry, t_exit = self._occupied_span(origins, directions, t_entry, t_exit)
-        dt = step / directions.norm(dim=-1)
-        counts = ((t_exit - t_entry) / dt).clamp_min(0).ceil().long()
-        log_transmittance = torch.zeros(rays, device=origins.device)
-        channels = torch.zeros(rays, 3 + self.config.features, device=origins.device)
-        active = (counts > 0).nonzero(as_tuple=True)[0]
-        block = self.config.block_samples
-        offsets = torch.arange(block, device=origins.device) + 0.5
-        start = 0
-        stop_log = math.log(self.config.termination_transmittance)
-        while len(active):
-            k = start + offsets
-            t = t_entry[active, None] + k[None] * dt[active, None]
-            candidates = origins[active, None] + t[..., None] * directions[active, None]
-            keep = (t < t_exit[active, None]) & self.occupied(candidates.view(-1, 3)).view(t.shape)
-            local_ray, sample = keep.nonzero(as_tuple=True)
-            points = candidates[local_ray, sample]
-            if len(points):
-                values = self.sample_grid(points)
-                depth = torch.zeros(len(active), block, device=origins.device).index_put((local_ray, sample), self.optical_depth(values[:, 0]))
-                weights, _ = weights_from_optical_depth(depth)
-                weights = weights * torch.exp(log_transmittance[active])[:, None]
-                shaded = torch.cat((torch.sigmoid(values[:, 1:4]), values[:, 4:]), dim=-1)
-                channels.index_add_(0, active[local_ray], weights[local_ray, sample][:, None] * shaded)
-                log_transmittance[active] -= depth.sum(dim=-1)
-            start += block
-            alive = (log_transmittance[active] > stop_log) & (counts[active] > start)
-            active = active[alive]
-        opacity = 1.0 - torch.exp(log_transmittance)
-        return self._ray_colour(channels[:, :3], channels[:, 3:], opacity, view_directions).clamp(0.0, 1.0)
+        dt = self.config.step_ratio * self.config.render_step_factor * self.ray_parameter_per_voxel(directions)
+        # Sample k at t_entry + (k + ½)·dt lies before the exit while k < (t_exit - t_entry)/dt - ½.
+        counts = ((t_exit - t_entry) / dt - 0.5).clamp_min(0).ceil().long()
+        start = (origins + (t_entry + 0.5 * dt)[:, None] * directions - self.box[0]) * to_vertices
+        step = dt[:, None] * directions * to_vertices
+        composited, log_transmittance = march(
+            start, step, counts, self._skip_table(), self._shade, 3 + self.config.features, self.config.termination_transmittance,
+        )
+        # Rays that met nothing are the background (or black): decode only the others.
+        colour = self.background.expand(len(origins), 3).clone() if self.has_background else torch.zeros_like(origins)
+        hit = (log_transmittance < 0).nonzero(as_tuple=True)[0]
+        opacity = -torch.expm1(log_transmittance[hit])
+        colour[hit] = self._ray_colour(composited[hit, :3], composited[hit, 3:], opacity, view_directions[hit])
+        return colour.clamp(0.0, 1.0)

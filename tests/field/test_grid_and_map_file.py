@@ -17,7 +17,7 @@ from locnerf.render.camera import PinholeIntrinsics
 
 def _tiny_map(generator: torch.Generator, ndc: bool = False) -> GridMap:
     box = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    field = GridField(box, GridFieldConfig(voxels=12**3, features=4, block_samples=5), background=(1.0, 1.0, 1.0))
+    field = GridField(box, GridFieldConfig(voxels=12**3, features=4, render_step_factor=1.0), background=(1.0, 1.0, 1.0))
     with torch.no_grad():
         field.grid.copy_(torch.randn(field.grid.shape, generator=generator) * 3.0)
         field.decoder[2].weight.normal_(generator=generator)
@@ -60,6 +60,14 @@ def test_occupancy_skipping_keeps_colours(generator: torch.Generator) -> None:
     full = radiance_map.render_rays(origins, directions)
     # Skipped voxels have one-step opacity below occupancy_alpha = 1e-3 (dilated by one vertex).
     assert float((skipped - full).abs().max()) < 2e-2
+
+
+def test_config_of_older_map_files_loads() -> None:
+    """Older map files store the block marcher's tuning (block_samples, coarse_factor): ignored."""
+    config = GridFieldConfig.model_validate({"voxels": 1000, "block_samples": 48, "coarse_factor": 8})
+    assert config == GridFieldConfig(voxels=1000)
+    with pytest.raises(ValueError, match="unknown_field"):
+        GridFieldConfig.model_validate({"unknown_field": 1})
 
 
 def test_map_file_round_trip(generator: torch.Generator, tmp_path: Path) -> None:
