@@ -1,9 +1,12 @@
-"""``locnerf bench <target>``: micro-benchmarks that print their figures (JSON with ``--json``).
+"""``locnerf bench render|world|filter``: micro-benchmarks that print their figures (JSON with ``--json``).
 
-Each target is one function registered in ``TARGETS``; ``render`` times a map's ``render_rays`` on
-the ray batches of the filter's update step (particles × pixels) against the nerf-pytorch-shaped
-MLP on the same rays. Further targets (prediction, resampling, rotation averaging, codec) add one
-parser and one function each.
+* ``render`` (here) times a map's ``render_rays`` on the ray batches of the filter's update step
+  (particles × pixels) against the nerf-pytorch-shaped MLP on the same rays;
+* ``world`` (``locnerf.cli.bench_world``) times the procedural world's ray renderer;
+* ``filter`` (``locnerf.cli.bench_filter``) times the filter's hot paths: likelihood, prediction,
+  resampling, rotation averaging, estimate, message encode/decode.
+
+``world`` and ``filter`` print a table (``locnerf.cli.bench_table``) or JSON lines.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from collections.abc import Callable
 
 import torch
 
+from locnerf.cli import bench_filter, bench_world
 from locnerf.devices import resolve_device
 from locnerf.field.map_file import load_map
 from locnerf.field.nerf_pytorch import NerfMLP, NerfPytorchMap
@@ -24,7 +28,7 @@ from locnerf.render.rays import rays_from_poses_and_pixels
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``bench`` and its targets."""
-    parser = subparsers.add_parser("bench", help="micro-benchmarks (render, ...)")
+    parser = subparsers.add_parser("bench", help="micro-benchmarks: render (a map), world (the procedural world), filter (hot paths)")
     targets = parser.add_subparsers(dest="bench_target", required=True)
     render = targets.add_parser("render", help="update-step rendering speed of a map vs the nerf-pytorch MLP")
     render.add_argument("--map", required=True, help="map file")
@@ -33,9 +37,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--repeats", type=int, default=10, help="timed update-step renders")
     render.add_argument("--mlp-rays", type=int, default=512, help="rays the MLP renders (its rate is scaled to the full batch)")
     render.add_argument("--device", default="auto")
+    render.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the services use 1)")
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--json", action="store_true", help="print JSON")
     render.set_defaults(func=run_render)
+    bench_world.add_target(targets)
+    bench_filter.add_target(targets)
 
 
 def _update_rays(radiance_map, particles: int, pixels: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
@@ -63,6 +70,9 @@ def _seconds_per_call(function: Callable[[], torch.Tensor], repeats: int, device
 
 
 def run_render(args: argparse.Namespace) -> int:
+    if args.threads < 1:
+        raise ValueError(f"--threads {args.threads}: expected at least 1")
+    torch.set_num_threads(args.threads)
     device = resolve_device(args.device)
     torch.manual_seed(args.seed)
     generator = torch.Generator().manual_seed(args.seed)

@@ -1,4 +1,4 @@
-"""``locnerf bench-filter``: micro-benchmarks of the filter's hot paths, one stable line per target.
+"""``locnerf bench filter``: micro-benchmarks of the filter's hot paths, one stable line per target.
 
 Targets (all at ``--particles`` N and ``--pixels`` M):
 
@@ -12,21 +12,21 @@ Targets (all at ``--particles`` N and ``--pixels`` M):
 * ``encode_result`` / ``decode_result``: an UpdateResult of N log-likelihoods;
 * ``encode_image`` / ``decode_image``: a frame of the map's default camera size.
 
-Each line is ``target  median_ms  p90_ms  calls_per_s`` over ``--repeats`` timed calls after one
+Each row is ``target  median_ms  p90_ms  calls_per_s`` over ``--repeats`` timed calls after one
 untimed call (``--json``: one JSON object per line with the same fields and the settings), so two
-runs can be compared line by line.
+runs can be compared line by line (``locnerf.cli.bench_table``).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from collections.abc import Callable
 
 import numpy as np
 import torch
 
+from locnerf.cli.bench_table import BenchTable
 from locnerf.cli.map_source import open_map
 from locnerf.devices import resolve_device
 from locnerf.filter.estimate import estimate_from_particles
@@ -40,8 +40,9 @@ from locnerf.messages.codec import decode, decode_image, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, UpdateRequest, UpdateResult
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("bench-filter", help="micro-benchmarks of the filter hot paths (prediction, resampling, codec, ...)")
+def add_target(targets: argparse._SubParsersAction) -> None:
+    """Add ``filter`` to the targets of ``locnerf bench``."""
+    parser = targets.add_parser("filter", help="the filter's hot paths: likelihood, prediction, resampling, rotation mean, codec, ...")
     parser.add_argument("--particles", type=int, default=300, help="N")
     parser.add_argument("--pixels", type=int, default=64, help="M")
     parser.add_argument("--repeats", type=int, default=20, help="timed calls per target")
@@ -124,12 +125,9 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         raise ValueError(f"--targets {unknown}: expected names among {sorted(targets)}")
     settings = {"particles": args.particles, "pixels": args.pixels, "map": args.map, "device": str(device), "threads": args.threads}
-    if not args.json:
-        print(f"# {json.dumps(settings)}")
-        print(f"{'target':<22} {'median_ms':>10} {'p90_ms':>10} {'calls_per_s':>12}")
+    table = BenchTable(("target", "median_ms", "p90_ms", "calls_per_s"), settings, args.json)
     for name in chosen:
         seconds = time_calls(targets[name], args.repeats, device)
         median, p90 = float(np.median(seconds)), float(np.percentile(seconds, 90))
-        line = {"target": name, "median_ms": round(1000 * median, 4), "p90_ms": round(1000 * p90, 4), "calls_per_s": round(1.0 / median, 1)}
-        print(json.dumps(settings | line) if args.json else f"{name:<22} {line['median_ms']:>10} {line['p90_ms']:>10} {line['calls_per_s']:>12}", flush=True)
+        table.row({"target": name, "median_ms": round(1000 * median, 4), "p90_ms": round(1000 * p90, 4), "calls_per_s": round(1.0 / median, 1)})
     return 0

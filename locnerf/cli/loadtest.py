@@ -104,17 +104,30 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
     processes: dict[str, subprocess.Popen] = {}
     namespace = _write_configs(case, folder)
 
+    def check_processes() -> None:
+        failed = [name for name, p in processes.items() if p.poll() is not None]
+        if failed:
+            raise RuntimeError(f"service(s) {failed} exited early: see the logs in {folder}")
+
+    def observe(item: tuple[str, bytes, float]) -> None:
+        try:
+            recorder.observe(*item)
+        except DecodeError as error:
+            raise RuntimeError(f"bad {item[0]} message on the bus: {error}") from error
+
     def drain_until(deadline: float) -> None:
         while time.monotonic() < deadline:
             item = inbox.get(timeout=0.05)
             if item is not None:
-                try:
-                    recorder.observe(*item)
-                except DecodeError as error:
-                    raise RuntimeError(f"bad {item[0]} message on the bus: {error}") from error
-            failed = [name for name, p in processes.items() if p.poll() is not None]
-            if failed:
-                raise RuntimeError(f"service(s) {failed} exited early: see the logs in {folder}")
+                observe(item)
+            check_processes()
+
+    def wait_until(deadline: float) -> None:
+        # Arrivals are stamped in the callbacks and stay queued: decoding them now would take CPU
+        # and the GIL from the callbacks and the services while they are being measured.
+        while time.monotonic() < deadline:
+            time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
+            check_processes()
 
     try:
         for name, command in service_commands(namespace).items():
@@ -125,17 +138,19 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
             if time.monotonic() > give_up:
                 raise RuntimeError(f"no pose within {FIRST_POSE_TIMEOUT_S} s: see the logs in {folder}")
             drain_until(time.monotonic() + 0.2)
-        drain_until(time.monotonic() + case.warmup)
+        wait_until(time.monotonic() + case.warmup)
         pids = {name: p.pid for name, p in processes.items()} | {"loadtest": os.getpid()}
         start, before = time.monotonic(), _sample_all(pids)
-        drain_until(start + case.duration)
+        wait_until(start + case.duration)
         end, after = time.monotonic(), _sample_all(pids)
-        drain_until(end + case.settle)
+        wait_until(end + case.settle)
     finally:
         stop_processes(processes)
         for handle in handles:
             handle.close()
         bus.close()
+    while (item := inbox.get(timeout=0.0)) is not None:
+        observe(item)
     report = recorder.report(start, end, observer_drops=inbox.dropped)
     case_fields = case.model_dump(include={"particles", "pixels", "workers", "camera_rate", "odometry_rate", "map", "device"})
     return case_fields | {"rays": case.particles * case.pixels} | report | {

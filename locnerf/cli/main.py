@@ -11,7 +11,6 @@ import sys
 SUBCOMMAND_MODULES = (
     "locnerf.cli.eval",
     "locnerf.cli.localize",
-    "locnerf.cli.bench_world",
     "locnerf.cli.map",
     "locnerf.cli.bench",
     "locnerf.cli.run",
@@ -19,7 +18,6 @@ SUBCOMMAND_MODULES = (
     "locnerf.cli.echo",
     "locnerf.cli.send",
     "locnerf.cli.loadtest",
-    "locnerf.cli.bench_filter",
 )
 
 

@@ -42,9 +42,10 @@ def chordal_rotation_mean(rotations: torch.Tensor, weights: torch.Tensor | None 
     return project_to_rotation((w[:, None, None] * rotations).sum(dim=0))
 
 
-def _geodesic_cost(mean: torch.Tensor, rotations: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+def _geodesic_residuals(mean: torch.Tensor, rotations: torch.Tensor, w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Residuals ``Log(meanᵀ R_i)`` (N, 3) and the cost ``Σ w_i |residual_i|²`` () at ``mean``."""
     residual = so3_log(mean.transpose(-1, -2) @ rotations)
-    return (w * (residual * residual).sum(dim=-1)).sum()
+    return residual, (w * (residual * residual).sum(dim=-1)).sum()
 
 
 def geodesic_rotation_mean(
@@ -65,11 +66,13 @@ def geodesic_rotation_mean(
         raise ValueError(f"rotations: expected shape (N>=1, 3, 3), got {tuple(rotations.shape)}")
     w = _normalised_weights(weights, rotations.shape[0], rotations)
     mean = chordal_rotation_mean(rotations, w)
-    best, best_cost = mean, _geodesic_cost(mean, rotations, w)
+    residual, best_cost = _geodesic_residuals(mean, rotations, w)
+    best = mean
     for _ in range(max_iterations):
-        step = (w[:, None] * so3_log(mean.transpose(-1, -2) @ rotations)).sum(dim=0)
+        step = (w[:, None] * residual).sum(dim=0)
         mean = mean @ so3_exp(step)
-        cost = _geodesic_cost(mean, rotations, w)
+        # One Log per iteration: the residuals at the new mean give its cost and the next step.
+        residual, cost = _geodesic_residuals(mean, rotations, w)
         if cost < best_cost:
             best, best_cost = mean, cost
         if torch.linalg.vector_norm(step) < tolerance:

@@ -1,4 +1,4 @@
-"""Speed of the procedural world's renderer (the ``locnerf bench-world`` command prints it).
+"""Speed of the procedural world's renderer (the ``locnerf bench world`` command prints it).
 
 Median milliseconds per ``render_rays`` call over rays through random pixels of plausible cameras.
 """

@@ -16,10 +16,10 @@ from locnerf.cli.map_source import open_map
 from locnerf.config import PRESETS, load_config, preset
 from locnerf.devices import resolve_device
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
-from locnerf.messages import keys
+from services.filter_loop.driver import FilterDriver
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
 from services.runtime import limit_torch_threads, load_service_config, stop_on_signals
-from services.transport import Bus, Inbox, LatestSlot, TransportConfig, open_bus
+from services.transport import Bus, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
 
@@ -57,40 +57,18 @@ def build_loop(config: FilterProcessConfig) -> FilterLoop:
 
 
 def serve(loop: FilterLoop, bus: Bus, stop: threading.Event) -> None:
-    """Run the loop until ``stop``: callbacks only enqueue, this thread does all the work."""
-    inbox: Inbox[tuple[str, str, bytes | bool]] = Inbox(capacity=1024)
-    images: LatestSlot[bytes] = LatestSlot()
-    robot = loop.robot_id
-    handlers = {
-        "odometry": lambda _key, payload: loop.handle_odometry(payload),
-        "result": lambda _key, payload: loop.handle_result(payload),
-        "initial_pose": lambda _key, payload: loop.handle_initial_pose(payload),
-        "global_localization": lambda _key, payload: loop.handle_global_localization(payload),
-        "worker": loop.worker_changed,
-    }
-    topics = {
-        "odometry": keys.ODOMETRY,
-        "result": keys.UPDATE_RESULT,
-        "initial_pose": keys.INITIAL_POSE,
-        "global_localization": keys.GLOBAL_LOCALIZATION,
-    }
-    handles = [bus.subscribe(keys.key(robot, topic), lambda key, payload, kind=kind: inbox.put((kind, key, payload))) for kind, topic in topics.items()]
-    handles.append(bus.subscribe(keys.key(robot, keys.IMAGE), lambda _key, payload: images.put(payload)))
-    handles.append(bus.watch_liveliness(keys.workers_alive_pattern(robot), lambda key, alive: inbox.put(("worker", key, alive))))
-    logger.info("filter loop serving robot %s", robot)
+    """Run the loop until ``stop``: callbacks only enqueue, this thread does all the work, odometry
+    first (:mod:`services.filter_loop.driver`)."""
+    driver = FilterDriver(loop, bus)
+    handles = driver.subscribe()
+    logger.info("filter loop serving robot %s", loop.robot_id)
     try:
         while not stop.is_set():
-            item = inbox.get(timeout=0.01)
-            outgoing = handlers[item[0]](item[1], item[2]) if item is not None else []
-            image = images.take()
-            if image is not None:
-                outgoing += loop.handle_image(image)
-            loop.images_replaced_upstream = images.replaced
-            for key, payload in outgoing + loop.tick():
-                bus.publish(key, payload)
+            driver.step(timeout=0.01)
     finally:
         for handle in handles:
             handle.close()
+        logger.info("%s", driver.timings.summary())
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -34,6 +34,13 @@ class WorkerConfig(BaseModel):
     device: str = Field("auto", description="auto, cpu, cuda or cuda:N.")
     worker_id: str = Field("", description="Name of this worker (empty: <hostname>-<pid>).")
     torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
+    nice: int = Field(
+        5,
+        ge=0,
+        le=19,
+        description="Niceness added to this process: renders are throughput work and should yield the CPU to the filter's "
+        "pose stream when both share a machine (0: same priority).",
+    )
     transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
 
 
@@ -84,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
     """Load the map, open the bus and serve until SIGINT/SIGTERM."""
     config = load_service_config(WorkerConfig, args.config, {k: getattr(args, k) for k in ("robot_id", "map", "device", "worker_id")})
     limit_torch_threads(config.torch_threads)
+    if config.nice:
+        os.nice(config.nice)
     device = resolve_device(config.device)
     worker = NerfWorker(open_map(config.map, device), config.worker_id or default_worker_id())
     stop = stop_on_signals()

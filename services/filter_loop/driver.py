@@ -1,0 +1,126 @@
+"""The filter thread's schedule on the bus: odometry goes before any other work.
+
+Zenoh callbacks only enqueue (design section 3): odometry into the urgent lane; update results,
+commands, liveliness changes and image arrivals into the normal lane (the image itself goes into a
+one-slot buffer, newest only). One thread calls :meth:`FilterDriver.step` in a loop, which
+
+1. takes the most urgent message, handles it and publishes its output at once (a pose leaves as
+   soon as its odometry has been handled, before anything else is computed);
+2. returns if odometry is waiting (the next step handles it): no update work while a pose is due;
+3. takes the newest image; returns again if odometry arrived meanwhile;
+4. runs the periodic work (expire, start an update, particle cloud, status) and publishes it.
+
+An odometry message therefore waits at most for one piece of non-odometry work that had already
+started when it arrived. The durations of every kind of work and the odometry's wait are kept in
+:class:`ThreadTimings` and logged every ``log_period`` seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+
+from locnerf.messages import keys
+from services.filter_loop.lanes import LaneInbox
+from services.filter_loop.service import FilterLoop, Outgoing
+from services.filter_loop.timings import ThreadTimings
+from services.transport import Bus, LatestSlot
+from services.transport.bus import Closeable
+
+logger = logging.getLogger(__name__)
+
+URGENT, NORMAL = 0, 1
+
+# (kind, key, payload, arrival in monotonic seconds)
+Arrival = tuple[str, str, bytes | bool | None, float]
+
+
+class FilterDriver:
+    """Connects a :class:`FilterLoop` to a bus and runs its thread's schedule.
+
+    Args:
+        loop: the filter (owned by the thread that calls :meth:`step`).
+        bus: where messages come from and go to.
+        clock: monotonic seconds (arrival stamps and timings).
+        log_period: seconds between two timing summaries in the log.
+    """
+
+    def __init__(self, loop: FilterLoop, bus: Bus, clock: Callable[[], float] = time.monotonic, log_period: float = 30.0) -> None:
+        self.loop = loop
+        self.bus = bus
+        self.clock = clock
+        self.log_period = log_period
+        self.inbox: LaneInbox[Arrival] = LaneInbox(lanes=2, capacity=1024)
+        self.images: LatestSlot[bytes] = LatestSlot()
+        self.timings = ThreadTimings()
+        self._handlers: dict[str, Callable[[str, bytes | bool | None], Outgoing]] = {
+            "odometry": lambda _key, payload: loop.handle_odometry(payload),
+            "result": lambda _key, payload: loop.handle_result(payload),
+            "initial_pose": lambda _key, payload: loop.handle_initial_pose(payload),
+            "global_localization": lambda _key, payload: loop.handle_global_localization(payload),
+            "worker": loop.worker_changed,
+            "image": lambda _key, _payload: self._take_image(),
+        }
+        self._last_log = clock()
+
+    def subscribe(self) -> list[Closeable]:
+        """Subscribe the callbacks (they only enqueue); close the handles to stop receiving."""
+        robot = self.loop.robot_id
+        topics = {
+            "result": keys.UPDATE_RESULT,
+            "initial_pose": keys.INITIAL_POSE,
+            "global_localization": keys.GLOBAL_LOCALIZATION,
+        }
+        handles = [self.bus.subscribe(keys.key(robot, keys.ODOMETRY), lambda key, payload: self._arrive(URGENT, "odometry", key, payload))]
+        handles += [
+            self.bus.subscribe(keys.key(robot, topic), lambda key, payload, kind=kind: self._arrive(NORMAL, kind, key, payload))
+            for kind, topic in topics.items()
+        ]
+        handles.append(self.bus.subscribe(keys.key(robot, keys.IMAGE), self._image_arrived))
+        handles.append(
+            self.bus.watch_liveliness(keys.workers_alive_pattern(robot), lambda key, alive: self._arrive(NORMAL, "worker", key, alive))
+        )
+        return handles
+
+    def _arrive(self, lane: int, kind: str, key: str, payload: bytes | bool) -> None:
+        self.inbox.put(lane, (kind, key, payload, self.clock()))
+
+    def _image_arrived(self, key: str, payload: bytes) -> None:
+        self.images.put(payload)
+        self.inbox.put(NORMAL, ("image", key, None, self.clock()))
+
+    def _take_image(self) -> Outgoing:
+        image = self.images.take()
+        self.loop.images_replaced_upstream = self.images.replaced
+        return self.loop.handle_image(image) if image is not None else []
+
+    def _run(self, kind: str, work: Callable[[], Outgoing], only_if_output: bool = False) -> None:
+        """Do one piece of work, publish its output, record its duration under ``kind`` (periodic
+        work that published nothing is not recorded; the topics it published are added to its kind)."""
+        started = self.clock()
+        outgoing = work()
+        for key, payload in outgoing:
+            self.bus.publish(key, payload)
+        if outgoing or not only_if_output:
+            if only_if_output:
+                kind += ":" + "+".join(sorted({"update_start" if "/update/request/" in key else key.rsplit("/", 1)[-1] for key, _ in outgoing}))
+            self.timings.record(kind, self.clock() - started)
+
+    def step(self, timeout: float = 0.01) -> None:
+        """One turn of the schedule (module docstring), waiting up to ``timeout`` s for a message."""
+        arrival = self.inbox.get(timeout)
+        if arrival is not None:
+            kind, key, payload, arrived = arrival
+            if kind == "odometry":
+                self.timings.record_wait(self.clock() - arrived)
+            self._run(kind, lambda: self._handlers[kind](key, payload))
+        if self.inbox.waiting(URGENT):
+            return
+        self._run("image", self._take_image, only_if_output=True)
+        if self.inbox.waiting(URGENT):
+            return
+        self._run("tick", self.loop.tick, only_if_output=True)
+        if self.clock() - self._last_log >= self.log_period:
+            self._last_log = self.clock()
+            logger.info("%s", self.timings.summary())

@@ -1,0 +1,70 @@
+"""The filter thread's schedule: odometry is handled and its pose published before any update work."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from locnerf.config import preset
+from locnerf.filter.localizer import Localizer, SearchRegion
+from locnerf.messages import keys
+from locnerf.messages.codec import encode, encode_image
+from locnerf.messages.schemas import ImageHeader, Odometry
+from locnerf.sim.world import ProceduralWorld
+from services.filter_loop.driver import FilterDriver
+from services.filter_loop.lanes import LaneInbox
+from services.filter_loop.service import FilterLoop, FilterLoopConfig
+from services.filter_loop.timings import ThreadTimings
+from services.transport.memory import MemoryBus
+
+ROBOT = "r"
+
+
+def test_the_urgent_lane_is_served_first_and_a_full_lane_drops_its_oldest():
+    inbox: LaneInbox[str] = LaneInbox(lanes=2, capacity=2)
+    for item in ("n1", "n2", "n3"):
+        inbox.put(1, item)
+    inbox.put(0, "u1")
+    assert inbox.dropped == 1 and inbox.waiting(0) == 1 and inbox.waiting(1) == 2
+    assert [inbox.get(timeout=0.0) for _ in range(4)] == ["u1", "n2", "n3", None]
+    with pytest.raises(IndexError, match="lane 2"):
+        inbox.put(2, "x")
+
+
+def test_timings_summarise_the_odometry_wait_and_each_kind_of_work():
+    timings = ThreadTimings(keep=3)
+    assert timings.summary().endswith("idle")
+    for seconds in (0.001, 0.002, 0.003, 0.004):
+        timings.record("odometry", seconds)
+    timings.record_wait(0.0005)
+    assert len(timings.work["odometry"]) == 3  # the newest kept
+    assert "odometry wait 0.50/0.50/0.50" in timings.summary() and "odometry 3.00/" in timings.summary()
+
+
+def test_queued_odometry_is_published_before_the_update_that_an_image_starts():
+    world = ProceduralWorld.default()
+    bounds = world.camera_bounds()
+    region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
+    localizer = Localizer(preset("llff").model_copy(update={"particles": 20}), torch.Generator().manual_seed(0), region=region)
+    now = [0.0]
+    loop = FilterLoop(ROBOT, localizer, world.normalization, region, FilterLoopConfig(), lambda: now[0])
+    bus = MemoryBus()
+    published: list[str] = []
+    bus.subscribe(f"locnerf/{ROBOT}/**", lambda key, _payload: published.append(key.removeprefix(f"locnerf/{ROBOT}/")))
+    driver = FilterDriver(loop, bus, clock=lambda: now[0])
+    driver.subscribe()
+    bus.declare_token(keys.key(ROBOT, keys.WORKER_ALIVE, worker_id="w", device="cpu"))
+    identity = torch.eye(4, dtype=torch.float64).tolist()
+    intrinsics = world.default_intrinsics
+    header = ImageHeader(stamp=0.0, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics)
+    frame = torch.zeros(intrinsics.height, intrinsics.width, 3, dtype=torch.uint8).numpy()
+    bus.publish(keys.key(ROBOT, keys.ODOMETRY), encode(Odometry(stamp=0.0, T_odom_body=identity)))
+    bus.publish(keys.key(ROBOT, keys.IMAGE), encode_image(header, frame))
+    bus.publish(keys.key(ROBOT, keys.ODOMETRY), encode(Odometry(stamp=1 / 15, T_odom_body=identity)))
+    mine = len(published)
+    for _ in range(4):
+        driver.step(timeout=0.0)
+    outputs = [key.rsplit("/", 1)[0] if key.startswith("update/request") else key for key in published[mine:]]
+    assert outputs[:2] == ["filter/pose", "filter/pose"]
+    assert "update/request" in outputs[2:]
+    assert len(driver.timings.odometry_wait) == 2
