@@ -21,7 +21,6 @@ from locnerf.eval.tracking import (
     run_tracking,
     search_region,
     summarize_tracking,
-    tracking_config,
 )
 from locnerf.eval.tracking_plots import plot_tracking_errors
 from locnerf.eval.tracking_source import CameraPath, ScenarioConfig, SequencePath, WorldPath, build_scenario
@@ -49,8 +48,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--rotation-noise", type=float, default=0.057, help="odometry white rotation noise per message, degrees per axis")
     parser.add_argument("--init", choices=("global", "gaussian"), default="global", help="start: the paper's global cube, or a Gaussian around the truth")
     parser.add_argument("--kidnap-at", type=float, default=None, help="seconds: the camera jumps half a loop ahead, unseen by the odometry")
-    parser.add_argument("--no-recovery", action="store_true", help="tracking configuration without kidnapping recovery")
-    parser.add_argument("--preset", default=None, help="filter preset instead of the tracking configuration (llff, llff_global, jackal)")
+    parser.add_argument("--no-recovery", action="store_true", help="turn kidnapping recovery off in the chosen configuration")
+    parser.add_argument("--preset", default="tracking", help="filter preset (tracking, llff, llff_global, jackal)")
     parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
@@ -61,12 +60,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def localizer_config(args: argparse.Namespace) -> LocalizerConfig:
-    """--config, else --preset, else the tracking configuration (without recovery if --no-recovery)."""
-    if args.config is not None:
-        return load_config(args.config)
-    if args.preset is not None:
-        return preset(args.preset)
-    return tracking_config(recovery={"enabled": False}) if args.no_recovery else tracking_config()
+    """--config, else --preset; recovery turned off if --no-recovery."""
+    config = load_config(args.config) if args.config is not None else preset(args.preset)
+    if args.no_recovery:
+        config = config.model_copy(update={"recovery": config.recovery.model_copy(update={"enabled": False})})
+    return config
 
 
 def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPath:

@@ -23,38 +23,14 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
-from locnerf.config import preset
 from locnerf.eval.tracking_source import TrackingScenario
 from locnerf.field.protocol import RadianceMap
-from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
+from locnerf.filter import Localizer, SearchRegion
 from locnerf.geometry import make_pose, pose_inverse, rotation_error_deg, se3_exp, translation_error
 
 logger = logging.getLogger(__name__)
 
 InitMode = Literal["global", "gaussian"]
-
-# The tracking configuration: the ``llff_global`` preset (600 particles, wide rotation noise, so a
-# global start converges) with 64 pixels per update and 150 particles once converged for accuracy,
-# and augmented-MCL recovery for kidnappings. Measured and explained in docs/RESULTS.md, "Tracking".
-TRACKING_PRESET = "llff_global"
-TRACKING_OVERRIDES: dict[str, Any] = {
-    "measurement": {"pixels": 64},
-    "annealing": {"reduced_particles": 150},
-    "recovery": {"enabled": True, "alpha_slow": 0.05, "alpha_fast": 0.5, "max_fraction": 0.3},
-}
-
-
-def tracking_config(**overrides: Any) -> LocalizerConfig:
-    """The tracking configuration (:data:`TRACKING_PRESET` with :data:`TRACKING_OVERRIDES`), then ``overrides``."""
-    return preset(TRACKING_PRESET, **_merged(TRACKING_OVERRIDES, overrides))
-
-
-def _merged(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
-    merged = dict(base)
-    for key, value in override.items():
-        merged[key] = {**merged[key], **value} if isinstance(value, dict) and isinstance(merged.get(key), dict) else value
-    return merged
-
 
 class StartConfig(BaseModel):
     """Where the particles start."""

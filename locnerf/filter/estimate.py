@@ -33,16 +33,26 @@ class PoseEstimate:
     stage: str
 
 
-def estimate_from_particles(particles: ParticleSet, stage: str) -> PoseEstimate:
-    """Compute the estimate of design section 1 from a particle set (in float64)."""
+def estimate_from_particles(particles: ParticleSet, stage: str, include: torch.Tensor | None = None) -> PoseEstimate:
+    """Compute the estimate of design section 1 from a particle set (in float64).
+
+    Args:
+        include: (N,) bool, the particles that pose, covariance and spread are computed from
+            (their weights renormalised); all when None. Effective sample size and count are
+            always those of the whole set.
+    """
     poses = particles.poses.double().cpu()
     weights = particles.weights.double().cpu()
+    effective = effective_sample_size(weights)
+    if include is not None:
+        include = include.cpu()
+        poses, weights = poses[include], weights[include] / weights[include].sum()
     mean = weighted_pose_mean(poses, weights)
     return PoseEstimate(
         pose=mean,
         covariance=tangent_covariance(poses, mean, weights),
         spread=weighted_position_spread(poses[:, :3, 3], weights),
-        effective_sample_size=effective_sample_size(weights),
+        effective_sample_size=effective,
         particle_count=particles.count,
         stage=stage,
     )

@@ -67,22 +67,25 @@ def global_particles(
     generator: torch.Generator,
     half_width: float = 1.0,
     up: tuple[float, float, float] = (0.0, 1.0, 0.0),
+    max_yaw: float = math.pi,
 ) -> torch.Tensor:
     """The paper's global protocol: positions uniform in a cube, yaw uniform, roll/pitch known.
 
     Positions are uniform in ``center ± half_width`` per axis; each rotation is ``center``'s
-    rotation turned by a uniform yaw in [-π, π) about the world ``up`` axis, which keeps the
-    direction of gravity in the camera frame (roll and pitch) exactly.
+    rotation turned by a uniform yaw in [-max_yaw, max_yaw) (the whole circle by default) about
+    the world ``up`` axis, which keeps the direction of gravity in the camera frame (roll and
+    pitch) exactly.
 
     Args:
         center: (4, 4) pose whose position is the cube's centre and whose tilt is the known one.
+        max_yaw: bound of the yaw turn, radians (π: any heading).
     Returns:
         (count, 4, 4) float64.
     """
     validate_poses(center, name="center pose")
     c = center.double().cpu()
     axis = torch.tensor(up, dtype=torch.float64)
-    yaw = rotation_about_axis(axis / axis.norm(), uniform(count, -math.pi, math.pi, generator))
+    yaw = rotation_about_axis(axis / axis.norm(), uniform(count, -max_yaw, max_yaw, generator))
     offsets = uniform(count * 3, -half_width, half_width, generator).reshape(count, 3)
     return make_pose(yaw @ c[:3, :3], c[:3, 3] + offsets)
 

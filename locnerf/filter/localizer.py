@@ -10,6 +10,7 @@ counted. The localizer is used from one thread only.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import torch
@@ -28,7 +29,7 @@ from locnerf.filter.measurement import (
 )
 from locnerf.filter.motion import MotionNoiseConfig, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
-from locnerf.filter.recovery import LikelihoodAverages, RecoveryConfig
+from locnerf.filter.recovery import InjectionPlan, RecoveryConfig, RecoveryMonitor, injection_poses
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
@@ -135,7 +136,7 @@ class Localizer:
         self.stage = AnnealingStage.COARSE
         self.particles: ParticleSet | None = None
         self._lineage = Lineage(config.lineage_depth)
-        self._averages = LikelihoodAverages(config.recovery)
+        self._recovery = RecoveryMonitor(config.recovery)
         self._next_id = 0
         self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0}
 
@@ -150,7 +151,7 @@ class Localizer:
         self.epoch += 1
         self.stage = AnnealingStage.COARSE
         self._lineage.clear()
-        self._averages.reset()
+        self._recovery.reset()
 
     def initialize_inerf(self, center: torch.Tensor, translation_half_width: float = 0.1, max_angle_deg: float = 40.0) -> None:
         """Particles spread by the iNeRF protocol around ``center`` (4, 4)."""
@@ -267,24 +268,38 @@ class Localizer:
 
         combined = particles.log_weights.double().cpu() + per_particle
         particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
-        log_mean_likelihood = float(torch.logsumexp(log_likelihoods, 0) - torch.log(torch.tensor(float(len(ids)))))
-        inject_fraction = self._averages.observe(log_mean_likelihood)
-        injected = self._resample(particles, inject_fraction)
+        injected = self._resample(particles, self._recovery.observe(self._log_best_likelihood(particles, per_particle)))
         self.counters["merged"] += 1
         return self._report("merged", injected)
 
-    def _resample(self, particles: ParticleSet, inject_fraction: float) -> int:
-        """Resample to the stage's particle count, inject recovery particles, start a new generation."""
+    @staticmethod
+    def _log_best_likelihood(particles: ParticleSet, per_particle: torch.Tensor) -> float:
+        """Largest log-likelihood (N,) -> float among the particles that descend from weighed ones.
+
+        Recovery compares this over time rather than the mean likelihood of augmented MCL: with
+        eq. 5's sharp likelihood the mean mostly measures how tight the cluster is (a looser cluster
+        has fewer particles near the peak), so annealing or the injections themselves would keep
+        triggering injections after the filter has recovered. Particles injected at the last
+        resampling are left out for the same reason.
+        """
+        survivors = (particles.parent_ids != NO_ANCESTOR).cpu()
+        return float(per_particle[survivors].max() if bool(survivors.any()) else per_particle.max())
+
+    def _resample(self, particles: ParticleSet, plan: InjectionPlan) -> int:
+        """Resample to the stage's particle count, inject recovery particles by ``plan``, start a new generation."""
         weights = particles.weights.double()
-        self.stage = stage_for_spread(weighted_position_spread(particles.positions.double(), weights), self.config.annealing)
+        # A filter that injects believes it is lost: back to the COARSE stage (full noise and count).
+        spread = math.inf if plan.fraction > 0 else weighted_position_spread(particles.positions.double(), weights)
+        self.stage = stage_for_spread(spread, self.config.annealing)
         target = particle_count(self.stage, self.config.particles, self.config.annealing)
         indices = RESAMPLERS[self.config.resampler](weights, target, self.generator).to(self.device)
         poses = particles.poses[indices]
         parents = particles.ids[indices]
-        injected = int(round(inject_fraction * target))
+        injected = int(round(plan.fraction * target))
         if injected > 0:
-            tilt = estimate_from_particles(particles, self.stage.value).pose[:3, :3]
-            fresh = initialization.uniform_particles(self.region.bounds(), injected, self.generator, tilt, self.region.up)
+            estimate = estimate_from_particles(particles, self.stage.value).pose
+            share = self.config.recovery.local_share
+            fresh = injection_poses(plan, injected, share, estimate, self.region.bounds(), self.region.up, self.generator)
             replaced = torch.randperm(target, generator=self.generator)[:injected].to(self.device)
             poses[replaced] = fresh.to(self.device, self.dtype)
             parents[replaced] = NO_ANCESTOR
@@ -318,5 +333,14 @@ class Localizer:
         return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods)
 
     def estimate(self) -> PoseEstimate:
-        """The current estimate (weighted mean pose, covariance, spread, ESS)."""
-        return estimate_from_particles(self._require_particles(), self.stage.value)
+        """The current estimate (weighted mean pose, covariance, spread, ESS).
+
+        Particles injected by recovery at the last resampling have not been weighed by any image
+        yet: until the next update they are left out of pose, covariance and spread (otherwise
+        uniform injections would drag the mean towards the middle of the search region).
+        """
+        particles = self._require_particles()
+        weighed = particles.parent_ids != NO_ANCESTOR
+        if bool(weighed.all()) or not bool(weighed.any()):  # nothing injected, or a fresh initialisation
+            return estimate_from_particles(particles, self.stage.value)
+        return estimate_from_particles(particles, self.stage.value, include=weighed)

@@ -2,34 +2,85 @@
 
 Two exponential averages of the mean measurement likelihood are kept, a slow one and a fast one:
 ``w_slow += α_slow (w_avg − w_slow)``, ``w_fast += α_fast (w_avg − w_fast)``. After each update a
-fraction ``max(0, 1 − w_fast / w_slow)`` of the particles is replaced by random ones: when the
+fraction ``max(0, 1 − e^τ w_fast / w_slow)`` of the particles is replaced by fresh ones: when the
 recent likelihood falls well below the long-term one, the filter is probably lost. Everything is
 kept in log space because eq. 5's likelihoods span hundreds of orders of magnitude. Off by default,
 as in amcl.
+
+Two departures from the textbook, both for eq. 5's sharp likelihood (a power γ = 4 of an inverse
+squared error): the likelihood fed to the averages is the best particle's, not the mean (the
+localizer's choice, see ``Localizer._log_best_likelihood``), and a drop of up to ``τ`` nats
+(``tolerance``) is tolerated, since a few nats separate a view seen from 2 cm off from one seen
+exactly, or a plain wall from a textured one; τ = 0 is augmented MCL.
+
+Where the fresh particles go: a share ``local_share`` is drawn around the current estimate (a
+position cube of half side ``r_k``, a yaw offset within ``±ψ_k``, the estimate's roll and pitch),
+the rest uniformly over the search region (uniform yaw, the estimate's roll and pitch). ``r_k``
+and ``ψ_k`` grow geometrically with the number ``k`` of consecutive updates that injected:
+``r_k = min(r_max, r_0 g^k)``, ``ψ_k = min(180°, ψ_0 g^k)``. A small jump (a slip, a drift that
+ran away) is found by the first, dense local draws; a large one by the later, wider ones or by the
+uniform share, whose density does not depend on how long the filter has been lost.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
+import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from locnerf.filter.initialization import global_particles, uniform_particles
 
 
 class RecoveryConfig(BaseModel):
-    """Augmented-MCL random-particle injection."""
+    """Augmented-MCL injection of fresh particles, around the estimate and over the search region."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    enabled: bool = Field(False, description="Inject random particles when the likelihood collapses.")
-    alpha_slow: float = Field(0.05, gt=0, le=1, description="Rate of the long-term likelihood average.")
-    alpha_fast: float = Field(0.5, gt=0, le=1, description="Rate of the short-term likelihood average.")
+    enabled: bool = Field(False, description="Inject fresh particles when the likelihood collapses.")
+    alpha_slow: float = Field(0.05, gt=0, le=1, description="Rate of the long-term likelihood average (per update).")
+    alpha_fast: float = Field(0.5, gt=0, le=1, description="Rate of the short-term likelihood average (per update).")
     max_fraction: float = Field(0.5, ge=0, le=1, description="Upper bound on the fraction of particles replaced per update.")
+    tolerance: float = Field(
+        0.0, ge=0, description="Drop (nats) of the fast average below the slow one that is tolerated: the fraction is 1 − (w_fast/w_slow)·e^tolerance (0: augmented MCL)."
+    )
+    local_share: float = Field(
+        0.5, ge=0, le=1, description="Share of the injected particles drawn around the current estimate; the rest are uniform over the search region."
+    )
+    local_radius: float = Field(
+        0.1, gt=0, description="r_0: half side (map units) of the position cube around the estimate at the first injecting update of a streak."
+    )
+    local_yaw_deg: float = Field(
+        10.0, ge=0, le=180, description="ψ_0: bound (degrees) of the yaw offset from the estimate at the first injecting update of a streak."
+    )
+    local_growth: float = Field(
+        1.5, ge=1, description="g: factor by which the local radius and yaw bound grow with each further consecutive injecting update."
+    )
+    local_max_radius: float = Field(2.0, gt=0, description="r_max: upper bound on the local radius, map units.")
 
     @model_validator(mode="after")
-    def _fast_above_slow(self) -> "RecoveryConfig":
+    def _consistent(self) -> "RecoveryConfig":
         if self.alpha_fast <= self.alpha_slow:
             raise ValueError(f"alpha_fast={self.alpha_fast} <= alpha_slow={self.alpha_slow}: expected alpha_fast > alpha_slow")
+        if self.local_max_radius < self.local_radius:
+            raise ValueError(f"local_max_radius={self.local_max_radius} < local_radius={self.local_radius}: expected r_max >= r_0")
         return self
+
+
+@dataclass(frozen=True)
+class InjectionPlan:
+    """How many fresh particles one update injects, and how far from the estimate the local ones go.
+
+    Attributes:
+        fraction: share of the resampled particles to replace, in [0, max_fraction].
+        local_radius: half side of the position cube around the estimate, map units.
+        local_yaw: bound of the yaw offset from the estimate, radians.
+    """
+
+    fraction: float
+    local_radius: float
+    local_yaw: float
 
 
 def _log_ema(log_average: float | None, log_value: float, rate: float) -> float:
@@ -41,25 +92,62 @@ def _log_ema(log_average: float | None, log_value: float, rate: float) -> float:
     return high + math.log(math.exp(a - high) + math.exp(b - high))
 
 
-class LikelihoodAverages:
-    """The slow and fast log-likelihood averages of augmented MCL."""
+class RecoveryMonitor:
+    """The slow and fast log-likelihood averages of augmented MCL and the current injection streak."""
 
     def __init__(self, config: RecoveryConfig) -> None:
         self.config = config
         self.log_slow: float | None = None
         self.log_fast: float | None = None
+        self.streak = 0
 
     def reset(self) -> None:
         """Forget the history (after a re-initialisation)."""
         self.log_slow = self.log_fast = None
+        self.streak = 0
 
-    def observe(self, log_mean_likelihood: float) -> float:
-        """Feed one update's log mean likelihood; return the fraction of particles to replace."""
-        if not math.isfinite(log_mean_likelihood):
-            return 0.0
-        self.log_slow = _log_ema(self.log_slow, log_mean_likelihood, self.config.alpha_slow)
-        self.log_fast = _log_ema(self.log_fast, log_mean_likelihood, self.config.alpha_fast)
-        if not self.config.enabled:
-            return 0.0
-        ratio = math.exp(min(0.0, self.log_fast - self.log_slow))
-        return min(self.config.max_fraction, max(0.0, 1.0 - ratio))
+    def observe(self, log_mean_likelihood: float) -> InjectionPlan:
+        """Feed one update's log mean likelihood; return what to inject after its resampling."""
+        config = self.config
+        fraction = 0.0
+        if math.isfinite(log_mean_likelihood):
+            self.log_slow = _log_ema(self.log_slow, log_mean_likelihood, config.alpha_slow)
+            self.log_fast = _log_ema(self.log_fast, log_mean_likelihood, config.alpha_fast)
+            if config.enabled:
+                ratio = math.exp(min(0.0, self.log_fast - self.log_slow + config.tolerance))
+                fraction = min(config.max_fraction, max(0.0, 1.0 - ratio))
+        growth = config.local_growth**self.streak
+        plan = InjectionPlan(
+            fraction=fraction,
+            local_radius=min(config.local_max_radius, config.local_radius * growth),
+            local_yaw=math.radians(min(180.0, config.local_yaw_deg * growth)),
+        )
+        self.streak = self.streak + 1 if fraction > 0 else 0
+        return plan
+
+
+def injection_poses(
+    plan: InjectionPlan,
+    count: int,
+    share_local: float,
+    estimate: torch.Tensor,
+    bounds: torch.Tensor,
+    up: tuple[float, float, float],
+    generator: torch.Generator,
+) -> torch.Tensor:
+    """Fresh particle poses: ``round(count · share_local)`` around the estimate, the rest uniform.
+
+    Args:
+        plan: radius and yaw bound of the local draws.
+        estimate: (4, 4) current estimate; its position centres the local cube, its rotation gives
+            every fresh particle's roll and pitch (and the local particles' yaw before the offset).
+        bounds: (2, 3) search region [min, max] for the uniform draws.
+        up: world axis opposite to gravity (the yaw axis).
+    Returns:
+        (count, 4, 4) float64 on the CPU, local draws first.
+    """
+    local = round(count * share_local)
+    estimate = estimate.double().cpu()
+    near = global_particles(estimate, local, generator, plan.local_radius, up, max_yaw=plan.local_yaw)
+    anywhere = uniform_particles(bounds, count - local, generator, estimate[:3, :3], up)
+    return torch.cat([near, anywhere])
