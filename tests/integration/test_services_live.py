@@ -107,10 +107,12 @@ def test_send_and_echo_commands(hub, tmp_path):
     wait_for(lambda: len(errors(observer, observer.poses[-1:])) == 1, 120, "a pose with ground truth", stack)
     cli = [sys.executable, "-m", "locnerf.cli.main"]
     connect = ["--robot-id", ROBOT, "--connect", stack.endpoint]
-    echo = subprocess.run(cli + ["echo", "pose", "--count", "3", "--timeout", "60", *connect], capture_output=True, text=True, timeout=120, cwd=REPO)
+    echo = subprocess.run(cli + ["echo", "pose", "--count", "6", "--timeout", "60", *connect], capture_output=True, text=True, timeout=120, cwd=REPO)
     lines = [line for line in echo.stdout.splitlines() if "xyz=" in line]
-    assert echo.returncode == 0 and len(lines) == 3, echo.stdout + echo.stderr
-    assert all("error=" in line for line in lines)
+    assert echo.returncode == 0 and len(lines) == 6, echo.stdout + echo.stderr
+    # The first poses may be of odometry whose ground truth went out before echo subscribed; once
+    # truth flows, every pose is scored (truth leaves the ingest before the odometry it goes with).
+    assert all("error=" in line for line in lines[-3:]), echo.stdout
 
     sent = subprocess.run(cli + ["send", "global-localization", *connect], capture_output=True, text=True, timeout=120, cwd=REPO)
     assert sent.returncode == 0, sent.stderr
