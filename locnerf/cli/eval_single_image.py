@@ -15,10 +15,12 @@ from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
 from locnerf.eval.paper_logs import read_logged_trials
-from locnerf.eval.plots import plot_error_curves, plot_success_against_passes
+from locnerf.eval.plots import plot_error_curves, plot_images_beside_renders, plot_success_against_passes
 from locnerf.eval.real_data import logged_views, run_views, seeded_views, success_by_budget, totals, trial_record
 from locnerf.eval.single_image import TrialConfig
 from locnerf.filter import Localizer
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import render_image
 
 logger = logging.getLogger(__name__)
 
@@ -71,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
               "particles": config.particles, "device": str(device), "totals": totals(records), "trials": records}
     if args.plots is not None:
         report["plots"] = write_plots(args.plots, args.protocol, views, results)
+        report["plots"].append(str(write_render_panels(args.plots / f"{args.protocol}_image_vs_render.png", radiance_map, pool.intrinsics, views, results)))
     if args.json:
         print(json.dumps(report, indent=2))
     else:
@@ -86,6 +89,18 @@ def held_out_frames(data: Path, split: str, downscale: int | None) -> set[int]:
     if split == "train":
         return set()
     return set(read_dataset(data, split="test", downscale=downscale).indices)
+
+
+def write_render_panels(path: Path, radiance_map, intrinsics: PinholeIntrinsics, views, results, count: int = 3, width: int = 160) -> Path:
+    """The first ``count`` trials' camera images beside the map rendered at their final estimates."""
+    small = intrinsics.scaled(min(1.0, width / intrinsics.width))
+    panels = []
+    for view, result in list(zip(views, results))[:count]:
+        image = torch.nn.functional.interpolate(view.image.permute(2, 0, 1)[None].float(), size=(small.height, small.width), mode="area")[0].permute(1, 2, 0)
+        rendering = render_image(radiance_map.render_rays, result.final_pose.to(radiance_map.device), small)
+        verdict = "success" if result.success else "failure"
+        panels.append((f"{view.name} ({result.translation_error:.3f}, {result.rotation_error_deg:.2f}°, {verdict})", image, rendering.cpu()))
+    return plot_images_beside_renders(panels, path, "camera image beside the map's rendering at the estimated pose")
 
 
 def write_plots(folder: Path, protocol: str, views, results) -> list[str]:

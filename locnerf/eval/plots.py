@@ -8,6 +8,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
+import torch  # noqa: E402
 
 from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialResult  # noqa: E402
 
@@ -51,6 +52,28 @@ def plot_success_against_passes(series: dict[str, tuple[list[int], list[float]]]
     axis.grid(True, alpha=0.3)
     axis.legend()
     axis.set_title(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path
+
+
+def plot_images_beside_renders(panels: list[tuple[str, torch.Tensor, torch.Tensor]], path: Path, title: str) -> Path:
+    """Camera images beside the map rendered at the estimated pose, one row each (paper Fig. 6 style).
+
+    Args:
+        panels: (label, camera image (H, W, 3), rendering (H, W, 3)), colours in [0, 1].
+    """
+    if not panels:
+        raise ValueError("no panels to plot: expected at least one (label, image, rendering)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure, axes = plt.subplots(len(panels), 2, figsize=(7, 3.2 * len(panels)), squeeze=False)
+    for row, (label, image, rendering) in zip(axes, panels):
+        for axis, picture, heading in ((row[0], image, f"camera: {label}"), (row[1], rendering, "map at the estimate")):
+            axis.imshow(picture.clamp(0, 1).cpu().numpy())
+            axis.set_title(heading, fontsize=9)
+            axis.axis("off")
+    figure.suptitle(title)
     figure.tight_layout()
     figure.savefig(path, dpi=100)
     plt.close(figure)

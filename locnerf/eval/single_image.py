@@ -63,6 +63,8 @@ class TrialResult:
     history_translation: list[float] = field(default_factory=list)
     history_rotation_deg: list[float] = field(default_factory=list)
     history_forward_passes: list[int] = field(default_factory=list)
+    final_pose: torch.Tensor | None = None
+    """(4, 4) float64 estimate after the last update."""
 
     @property
     def success(self) -> bool:
@@ -119,6 +121,7 @@ def run_trial(
     result.translation_error = result.history_translation[-1]
     result.rotation_error_deg = result.history_rotation_deg[-1]
     result.forward_passes = forward_passes
+    result.final_pose = estimate
     return result
 
 
