@@ -13,6 +13,15 @@ import torch  # noqa: E402
 from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialResult  # noqa: E402
 
 
+def save_figure(figure: plt.Figure, path: Path, title: str) -> Path:
+    """Title, lay out and write ``figure`` to ``path`` (PNG, 100 dpi), then release it."""
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path
+
+
 def plot_error_curves(results: list[TrialResult], path: Path, title: str) -> Path:
     """Translation and rotation error of every trial against forward passes (paper Fig. 3 style)."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -28,11 +37,7 @@ def plot_error_curves(results: list[TrialResult], path: Path, title: str) -> Pat
         axis.set_ylabel(label)
         axis.grid(True, alpha=0.3)
         axis.legend()
-    figure.suptitle(title)
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, title)
 
 
 def plot_success_against_passes(series: dict[str, tuple[list[int], list[float]]], path: Path, title: str) -> Path:
@@ -51,11 +56,7 @@ def plot_success_against_passes(series: dict[str, tuple[list[int], list[float]]]
     axis.set_ylim(-0.02, 1.02)
     axis.grid(True, alpha=0.3)
     axis.legend()
-    axis.set_title(title)
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, title)
 
 
 def plot_images_beside_renders(panels: list[tuple[str, torch.Tensor, torch.Tensor]], path: Path, title: str) -> Path:
@@ -73,8 +74,4 @@ def plot_images_beside_renders(panels: list[tuple[str, torch.Tensor, torch.Tenso
             axis.imshow(picture.clamp(0, 1).cpu().numpy())
             axis.set_title(heading, fontsize=9)
             axis.axis("off")
-    figure.suptitle(title)
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, title)

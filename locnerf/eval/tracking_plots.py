@@ -4,12 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
-
-from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord  # noqa: E402
+from locnerf.eval.plots import save_figure
+from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord
 
 
 def plot_tracking_errors(
@@ -39,8 +37,4 @@ def plot_tracking_errors(
         axis.grid(True, alpha=0.3)
     ax_t.legend(loc="upper right", fontsize=8)
     ax_r.set_xlabel("time (s)")
-    figure.suptitle(title)
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, title)
