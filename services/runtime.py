@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 import logging
 import signal
+import sys
 import threading
 import time
 import tomllib
@@ -66,6 +67,20 @@ class RateMeter:
             return 0.0
         span = self._times[-1] - self._times[0]
         return (len(self._times) - 1) / span if span > 0 else 0.0
+
+
+LATENCY_SWITCH_INTERVAL_S = 0.0005
+"""GIL switch interval of the processes on the pose path (CPython's default is 5 ms)."""
+
+
+def prefer_latency_over_throughput() -> None:
+    """Let a waiting thread take the GIL after at most ``LATENCY_SWITCH_INTERVAL_S``.
+
+    The filter and the ingest run a latency-bound thread (pose, odometry release) beside threads
+    that compute (merges, frame rendering): with the default 5 ms interval the latency-bound
+    thread could wait that long for the interpreter after its wake-up.
+    """
+    sys.setswitchinterval(LATENCY_SWITCH_INTERVAL_S)
 
 
 def stop_on_signals() -> threading.Event:

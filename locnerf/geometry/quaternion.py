@@ -59,25 +59,21 @@ def matrix_to_quaternion(rotation: torch.Tensor) -> torch.Tensor:
 
 
 def quaternion_to_rotvec(quaternion: torch.Tensor) -> torch.Tensor:
-    """Rotation vector (angle in [0, π]) of a quaternion (w, x, y, z).
+    """Rotation vector (angle in [0, π]) of a quaternion (w, x, y, z), any non-zero norm.
 
-    ``angle = 2·atan2(|v|, w)`` after flipping to w >= 0; the factor ``angle/|v|`` tends to ``2/w``
-    for small |v| and is evaluated with its series there.
+    ``angle = 2·atan2(|v|, |w|)`` (the sign of q flipped so that w >= 0) and the rotation vector is
+    ``angle · v / |v|``. Both are invariant to the quaternion's scale, so it is not normalised, and
+    ``atan2`` is exact to rounding for tiny |v| (``2|v|/|w|``), so no series is needed; v = 0 gives 0.
 
     Args:
         quaternion: (..., 4).
     Returns:
         (..., 3).
     """
-    q = quaternion / torch.linalg.vector_norm(quaternion, dim=-1, keepdim=True)
-    q = torch.where(q[..., :1] < 0, -q, q)
-    w, v = q[..., 0], q[..., 1:]
+    w, v = quaternion[..., 0], quaternion[..., 1:]
     s = torch.linalg.vector_norm(v, dim=-1)
-    angle = 2.0 * torch.atan2(s, w)
-    small = s < 1e-6
-    safe_s = torch.where(small, torch.ones_like(s), s)
-    # For small s: angle/s = 2/w · (1 - s²/(3w²) + ...), with w ≈ 1.
-    factor = torch.where(small, 2.0 / w * (1.0 - s * s / (3.0 * w * w)), angle / safe_s)
+    signed_double = torch.where(w < 0, -2.0, 2.0)
+    factor = signed_double * torch.atan2(s, w.abs()) / s.clamp_min(torch.finfo(s.dtype).tiny)
     return v * factor[..., None]
 
 

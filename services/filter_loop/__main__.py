@@ -18,7 +18,7 @@ from locnerf.devices import resolve_device
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
 from services.filter_loop.driver import FilterDriver
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
-from services.runtime import limit_torch_threads, load_service_config, stop_on_signals
+from services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, stop_on_signals
 from services.transport import Bus, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
@@ -86,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     overrides = {k: getattr(args, k) for k in ("robot_id", "map", "device", "localizer", "seed")}
     config = load_service_config(FilterProcessConfig, args.config, overrides)
     limit_torch_threads(config.torch_threads)
+    prefer_latency_over_throughput()
     loop = build_loop(config)
     stop = stop_on_signals()
     bus = open_bus(config.transport.with_environment())

@@ -97,9 +97,15 @@ class FilterDriver:
 
     def _run(self, kind: str, work: Callable[[], Outgoing], only_if_output: bool = False) -> None:
         """Do one piece of work, publish its output, record its duration under ``kind`` (periodic
-        work that published nothing is not recorded; the topics it published are added to its kind)."""
+        work that published nothing is not recorded; the topics it published are added to its kind).
+
+        Odometry also records the thread's CPU time for its work (``odometry_cpu``): wall time above
+        it is time the thread was runnable but not running, i.e. other processes on its cores."""
         started = self.clock()
+        cpu_started = time.thread_time()
         outgoing = work()
+        if kind == "odometry":
+            self.timings.record("odometry_cpu", time.thread_time() - cpu_started)
         for key, payload in outgoing:
             self.bus.publish(key, payload)
         if outgoing or not only_if_output:

@@ -35,7 +35,7 @@ class WorkerConfig(BaseModel):
     worker_id: str = Field("", description="Name of this worker (empty: <hostname>-<pid>).")
     torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
     nice: int = Field(
-        5,
+        10,
         ge=0,
         le=19,
         description="Niceness added to this process: renders are throughput work and should yield the CPU to the filter's "

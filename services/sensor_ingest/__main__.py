@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Literal
 
@@ -20,10 +21,11 @@ from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus
 from locnerf.sim.world import ProceduralWorld
-from services.runtime import limit_torch_threads, load_service_config, stop_on_signals
+from services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, stop_on_signals
 from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
 from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
 from services.sensor_ingest.events import SensorEvent
+from services.sensor_ingest.prefetch import PrefetchedEvents
 from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
 from services.sensor_ingest.service import Pacer, event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
@@ -54,6 +56,12 @@ class IngestConfig(BaseModel):
         0, ge=0, description="Before streaming, wait until the filter reports this many live workers (0: start at once)."
     )
     wait_timeout: float = Field(120.0, gt=0, description="Longest wait for the filter and workers, seconds.")
+    prefetch_events: int = Field(
+        32, ge=0, description="Events produced ahead of their release by a background thread (0: produced inline, between releases)."
+    )
+    prefetch_nice: int = Field(
+        10, ge=0, le=19, description="Niceness added to the producing thread: frame rendering yields the CPU to the release of odometry."
+    )
     torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
     transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
 
@@ -103,11 +111,14 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
 
 def stream(bus: Bus, config: IngestConfig, stop: threading.Event) -> int:
     """Publish the configured stream; returns the number of events sent."""
-    events = sensor_events(config)
+    events: Iterable[SensorEvent] = sensor_events(config)
     sent = 0
-    for event in Pacer(config.speed).paced(events, stop.is_set):
-        bus.publish(*event_message(config.robot_id, event))
-        sent += 1
+    with contextlib.ExitStack() as stack:
+        if config.prefetch_events:
+            events = stack.enter_context(PrefetchedEvents(events, config.prefetch_events, config.prefetch_nice))
+        for event in Pacer(config.speed).paced(events, stop.is_set):
+            bus.publish(*event_message(config.robot_id, event))
+            sent += 1
     return sent
 
 
@@ -128,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None:
         config = IngestConfig.model_validate(config.model_dump() | {"world": config.world.model_dump() | {"duration": args.duration}})
     limit_torch_threads(config.torch_threads)
+    prefer_latency_over_throughput()
     stop = stop_on_signals()
     bus = open_bus(config.transport.with_environment())
     try:

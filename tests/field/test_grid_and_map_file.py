@@ -127,3 +127,24 @@ def test_trilinear_lookup_matches_grid_sample(generator: torch.Generator) -> Non
     normalised = (2.0 * (points - box[0]) / (box[1] - box[0]) - 1.0).view(1, 1, 1, -1, 3)
     expected = F.grid_sample(volume, normalised, align_corners=True, padding_mode="border").view(volume.shape[1], -1).t()
     torch.testing.assert_close(field.sample_grid(points), expected, atol=1e-12, rtol=0)
+
+
+def test_trilinear_lookup_gradient_matches_grid_sample(generator: torch.Generator) -> None:
+    """Oracle for the scatter backward: the table gradient of a weighted loss equals grid_sample's (float64)."""
+    import torch.nn.functional as F
+
+    box = torch.tensor([[-1.0, -2.0, 0.0], [1.0, 2.0, 3.0]], dtype=torch.float64)
+    field = GridField(box, GridFieldConfig(voxels=7 * 13 * 10, features=2), background=None).double()
+    with torch.no_grad():
+        field.grid.copy_(torch.randn(field.grid.shape, generator=generator, dtype=torch.float64))
+    # Many points per voxel, so that rows receive several contributions that must add up.
+    points = box[0] + (box[1] - box[0]) * torch.rand(3000, 3, generator=generator, dtype=torch.float64)
+    upstream = torch.randn(3000, field.grid.shape[1], generator=generator, dtype=torch.float64)
+    (field.sample_grid(points) * upstream).sum().backward()
+    rx, ry, rz = field.resolution
+    volume = field.grid.detach().t().reshape(1, -1, rz, ry, rx).clone().requires_grad_(True)
+    normalised = (2.0 * (points - box[0]) / (box[1] - box[0]) - 1.0).view(1, 1, 1, -1, 3)
+    sampled = F.grid_sample(volume, normalised, align_corners=True, padding_mode="border").view(volume.shape[1], -1).t()
+    (sampled * upstream).sum().backward()
+    expected = volume.grad.reshape(volume.shape[1], -1).t()
+    torch.testing.assert_close(field.grid.grad, expected, atol=1e-10, rtol=0)
