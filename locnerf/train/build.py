@@ -42,6 +42,9 @@ class ForwardFacingConfig(BaseModel):
     grid_learning_rate: float = Field(0.3, gt=0, description="Initial Adam learning rate of the grid.")
     batch_rays: int = Field(2048, gt=0, description="Rays per optimisation step.")
     occupancy_warmup: int = Field(30, ge=0, description="Steps before empty-space skipping starts.")
+    render_step_factor: float = Field(
+        1.0, ge=1, description="The field's render_step_factor: NDC maps render at the training step (fern hold-out 22.7 dB against 21.9 dB at 2×)."
+    )
 
 
 class BuildConfig(BaseModel):
@@ -89,10 +92,28 @@ def config_for(images: PosedImages, config: BuildConfig) -> BuildConfig:
         return config
     ndc = config.forward_facing
     aspect = (1.0, images.intrinsics.width / images.intrinsics.height, ndc.depth_ratio)
-    field = config.field.model_copy(update={"voxel_aspect": aspect, "step_ratio": ndc.step_ratio, "initial_alpha": ndc.initial_alpha})
+    field = config.field.model_copy(
+        update={"voxel_aspect": aspect, "step_ratio": ndc.step_ratio, "initial_alpha": ndc.initial_alpha, "render_step_factor": ndc.render_step_factor}
+    )
     return config.model_copy(
         update={"field": field, "grid_learning_rate": ndc.grid_learning_rate, "batch_rays": ndc.batch_rays, "occupancy_warmup": ndc.occupancy_warmup}
     )
+
+
+def field_box(images: PosedImages, field_origins: torch.Tensor, field_directions: torch.Tensor) -> torch.Tensor:
+    """(2, 3) box of the grid: the data's scene bounds, for NDC data widened in x and y to every training ray.
+
+    NDC's [-1, 1]² is the reference camera's frustum; the other cameras of a forward-facing capture
+    look past it (fern's rays reach x ±1.44, y ±1.29), and a grid clipped to it cannot explain
+    those pixels. An NDC ray is a straight line from the near plane (t = 0) to infinity (t = 1), so
+    its extent is that of its two ends. ``field_origins``, ``field_directions``: (R, 3) in field space.
+    """
+    box = images.scene_bounds.double().clone()
+    if images.normalization.ndc:
+        ends = torch.cat((field_origins, field_origins + field_directions)).double().cpu()
+        box[0, :2] = torch.minimum(box[0, :2], ends[:, :2].amin(dim=0))
+        box[1, :2] = torch.maximum(box[1, :2], ends[:, :2].amax(dim=0))
+    return box
 
 
 def _optimizer(field: GridField, config: BuildConfig) -> torch.optim.Optimizer:
@@ -121,10 +142,11 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
     origins, directions, colours = training_rays(images, device)
     field_origins, field_directions = info.field_rays(origins, directions)
     background = (1.0, 1.0, 1.0) if images.white_background else None
-    field = GridField(images.scene_bounds.to(device), config.field, background).to(device)
+    box = field_box(images, field_origins, field_directions)
+    field = GridField(box.to(device), config.field, background).to(device)
     fine_resolution = field.resolution
     if config.coarse_fraction > 0:
-        field.resize(grid_shape_for_box(images.scene_bounds, config.field.voxels // 8, config.field.voxel_aspect))
+        field.resize(grid_shape_for_box(box, config.field.voxels // 8, config.field.voxel_aspect))
     optimizer = _optimizer(field, config)
     start = time.monotonic()
     budget = config.minutes * 60.0 if config.minutes is not None else None

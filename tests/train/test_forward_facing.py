@@ -60,7 +60,26 @@ def test_forward_facing_settings_replace_the_general_ones_for_ndc_data_only(shar
     fern = config_for(read_llff(shared_data / "llff" / "fern", downscale=8, split="test"), config)
     ndc = config.forward_facing
     assert fern.field.voxel_aspect == (1.0, 504 / 378, ndc.depth_ratio)
-    assert (fern.field.step_ratio, fern.field.initial_alpha) == (ndc.step_ratio, ndc.initial_alpha)
+    assert (fern.field.step_ratio, fern.field.initial_alpha, fern.field.render_step_factor) == (ndc.step_ratio, ndc.initial_alpha, ndc.render_step_factor)
     assert (fern.batch_rays, fern.grid_learning_rate, fern.occupancy_warmup) == (ndc.batch_rays, ndc.grid_learning_rate, ndc.occupancy_warmup)
     lego = read_nerf_synthetic(shared_data / "nerf_synthetic" / "lego", split="val", downscale=16, skip_missing=True)
     assert config_for(lego, config) is config
+
+
+def test_the_ndc_grid_box_covers_every_training_ray_and_object_boxes_stay(shared_data: Path) -> None:
+    from locnerf.field.map_info import MapInfo
+    from locnerf.train.build import field_box, training_rays
+
+    fern = read_llff(shared_data / "llff" / "fern", downscale=8, split="test")
+    info = MapInfo(fern.normalization, fern.intrinsics, fern.T_world_cam.double(), {})
+    field_origins, field_directions = info.field_rays(*training_rays(fern, torch.device("cpu"))[:2])
+    box = field_box(fern, field_origins, field_directions)
+    ends = torch.cat((field_origins, field_origins + field_directions)).double()
+    # float32 rays: their NDC depth ends are ±1 to within rounding
+    assert (ends >= box[0] - 1e-6).all() and (ends <= box[1] + 1e-6).all()
+    # fern's side cameras see past NDC's [-1, 1]² (the reference frustum); depth stays [-1, 1]
+    assert box[0, 0] < -1.1 and box[1, 0] > 1.1
+    torch.testing.assert_close(box[:, 2], torch.tensor([-1.0, 1.0], dtype=torch.float64))
+    lego = read_nerf_synthetic(shared_data / "nerf_synthetic" / "lego", downscale=16, split="val", skip_missing=True)
+    unchanged = field_box(lego, torch.zeros(1, 3), torch.full((1, 3), 100.0))
+    torch.testing.assert_close(unchanged, lego.scene_bounds.double())
