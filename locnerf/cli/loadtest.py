@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import math
 import json
 import os
 import subprocess
@@ -51,16 +52,30 @@ class LoadCaseConfig(BaseModel):
     device: str = Field("auto", description="Device of the filter and workers: auto, cpu, cuda.")
     seed: int = Field(0, description="Seed of the stream and the filter.")
     robot_id: str = Field("loadtest", description="Robot id of the keys.")
+    prerender: bool = Field(
+        True,
+        description="The ingest renders the whole synthetic stream before releasing it (IngestConfig.prefill), so "
+        "the frame rendering of the test's camera does not load the machine under test; false renders while streaming.",
+    )
+
+
+# Seconds of stream after the measurement window's settle time: the ingest starts streaming once
+# the workers are up (--wait-for-workers), so the first pose follows within a frame.
+_STREAM_MARGIN_S = 5.0
 
 
 def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
     """Write the localizer, ingest, filter and worker TOMLs of ``case`` into ``folder``; the
     namespace ``locnerf.cli.up.service_commands`` expects."""
     folder.mkdir(parents=True, exist_ok=True)
+    stream_seconds = case.warmup + case.duration + case.settle + _STREAM_MARGIN_S
+    # World stream events: a ground truth and an odometry message per odometry stamp, an image per frame.
+    events = math.ceil(stream_seconds * (2 * case.odometry_rate + case.camera_rate)) + 8
+    prefetch = f"prefetch_events = {events}\nprefill = true\n" if case.prerender else ""
     files = {
         "localizer": f'preset = "llff"\nparticles = {case.particles}\n\n[measurement]\npixels = {case.pixels}\n\n'
         f"[annealing]\nreduced_particles = {case.particles}\n",
-        "ingest": f'source = "world"\n\n[world]\nodometry_rate = {case.odometry_rate}\ncamera_rate = {case.camera_rate}\n',
+        "ingest": f'source = "world"\n{prefetch}\n[world]\nodometry_rate = {case.odometry_rate}\ncamera_rate = {case.camera_rate}\n',
         "filter": f"map = {json.dumps(case.map)}\n",
         "worker": f"map = {json.dumps(case.map)}\n",
     }
@@ -68,10 +83,9 @@ def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
     for name, text in files.items():
         paths[name] = folder / f"{name}.toml"
         paths[name].write_text(text)
-    stream_seconds = case.warmup + case.duration + case.settle + 30.0
     return argparse.Namespace(
         robot_id=case.robot_id, device=case.device, workers=case.workers, localizer=str(paths["localizer"]), seed=case.seed,
-        filter_config=paths["filter"], worker_config=paths["worker"], ingest_config=paths["ingest"], duration=stream_seconds, speed=1.0,
+        filter_config=paths["filter"], worker_config=paths["worker"], ingest_config=paths["ingest"], duration=stream_seconds, speed=1.0, stream_margin=0.0,
     )
 
 
@@ -201,6 +215,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--map", default="world", help="'world' or a map file for the filter and workers")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--render-live", action="store_true", help="render the synthetic stream while streaming (default: before, see prerender)")
     parser.add_argument("--out", type=Path, default=Path("out/loadtest"), help="folder for logs, configs and the sweep's CSV/PNG")
     parser.add_argument("--json", action="store_true", help="print JSON only (a list for a sweep)")
     parser.set_defaults(func=run)
@@ -212,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
     for workers, particles, pixels in combinations:
         case = LoadCaseConfig(
             particles=particles, pixels=pixels, workers=workers, camera_rate=args.camera_rate, odometry_rate=args.odometry_rate,
-            duration=args.duration, warmup=args.warmup, map=args.map, device=args.device, seed=args.seed,
+            duration=args.duration, warmup=args.warmup, map=args.map, device=args.device, seed=args.seed, prerender=not args.render_live,
         )
         report = run_case(case, args.out / f"w{workers}_p{particles}_m{pixels}")
         reports.append(report)

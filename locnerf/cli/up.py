@@ -45,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--worker-config", type=Path, help="TOML for the workers (WorkerConfig)")
     parser.add_argument("--logs", type=Path, default=Path("out/up/logs"), help="folder for the services' logs")
     parser.add_argument("--plot", type=Path, help="write a PNG of trajectory and error here at the end")
-    parser.set_defaults(func=run)
+    parser.set_defaults(func=run, stream_margin=60.0)
 
 
 def free_port() -> int:
@@ -56,7 +56,10 @@ def free_port() -> int:
 
 
 def service_commands(args: argparse.Namespace) -> dict[str, list[str]]:
-    """Command lines of every service process, keyed by a log name."""
+    """Command lines of every service process, keyed by a log name.
+
+    The ingest streams ``duration · speed + stream_margin`` sensor seconds (``locnerf up`` keeps a
+    minute beyond its run; the load test passes the exact length it measures)."""
     base = [sys.executable, "-m", "locnerf.cli.main", "-v", "run"]
     robot = ["--robot-id", args.robot_id]
     worker = base + ["worker", *robot, "--device", args.device] + (["--config", str(args.worker_config)] if args.worker_config else [])
@@ -64,7 +67,7 @@ def service_commands(args: argparse.Namespace) -> dict[str, list[str]]:
     commands["filter"] = base + ["filter", *robot, "--device", args.device, "--localizer", args.localizer, "--seed", str(args.seed)] + (
         ["--config", str(args.filter_config)] if args.filter_config else []
     )
-    stream_seconds = args.duration * args.speed + 60.0 if args.duration > 0 else 24 * 3600.0
+    stream_seconds = args.duration * args.speed + args.stream_margin if args.duration > 0 else 24 * 3600.0
     commands["ingest"] = base + [
         "ingest", *robot, "--speed", str(args.speed), "--seed", str(args.seed), "--wait-for-workers", str(args.workers),
         "--duration", str(stream_seconds),

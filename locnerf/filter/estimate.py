@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
 from locnerf.filter.particles import ParticleSet, weighted_position_spread
 from locnerf.filter.resampling import effective_sample_size
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
+from locnerf.geometry.so3 import hat
 
 
 ROTATION_MEAN_TOLERANCE = 1e-7
@@ -62,3 +63,37 @@ def estimate_from_particles(particles: ParticleSet, stage: str, include: torch.T
         particle_count=particles.count,
         stage=stage,
     )
+
+
+def carry_estimate(estimate: PoseEstimate, increment: torch.Tensor | None, sigma: torch.Tensor) -> PoseEstimate:
+    """The estimate moved by one prediction step (eq. 4) without touching the particles.
+
+    Eq. 4 moves every particle by ``X·O·Exp(δ)``; its mean moves to ``pose·O`` (δ has zero mean)
+    and its tangent-space covariance, to first order, to ``J Σ Jᵀ + diag(σ²)`` with
+    ``J = [[R_Oᵀ, 0], [−R_Oᵀ [t_O]×, R_Oᵀ]]`` (rotation first, as in :class:`PoseEstimate`).
+    This is how the filter publishes a pose at the odometry rate between image updates, as
+    amcl's map→odom transform does: the particles' weighted mean differs from it only by the
+    sampling scatter of the noise draws.
+
+    Args:
+        estimate: the last estimate computed from the particles (or carried since).
+        increment: (4, 4) odometry increment ``T_prev_curr`` in map units, or None (noise only).
+        sigma: (6,) prediction-noise standard deviations (rotation, translation) of the step.
+    Returns:
+        The moved estimate; spread from the carried position covariance; ESS, count and stage kept.
+    """
+    covariance = estimate.covariance.double()
+    pose = estimate.pose.double()
+    if increment is not None:
+        increment = increment.double()
+        rotation_t = increment[:3, :3].T
+        jacobian = torch.zeros(6, 6, dtype=torch.float64)
+        jacobian[:3, :3] = rotation_t
+        jacobian[3:, 3:] = rotation_t
+        jacobian[3:, :3] = -rotation_t @ hat(increment[:3, 3])
+        covariance = jacobian @ covariance @ jacobian.T
+        pose = pose @ increment
+    covariance = covariance + torch.diag(sigma.double() ** 2)
+    world_position_covariance = pose[:3, :3] @ covariance[3:, 3:] @ pose[:3, :3].T
+    spread = float(torch.sqrt(torch.diagonal(world_position_covariance).clamp_min(0.0)).max())
+    return replace(estimate, pose=pose, covariance=covariance, spread=spread)

@@ -25,7 +25,7 @@ from locnerf.filter.measurement import (
     RenderRays,
     observed_colours,
     particle_log_likelihoods,
-    sample_pixels,
+    sample_pixels_of_image,
 )
 from locnerf.filter.motion import MotionNoiseConfig, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
@@ -325,7 +325,7 @@ class Localizer:
             )
         snap = self.snapshot()
         config = self.config.measurement
-        pixels = sample_pixels(intrinsics.height, intrinsics.width, config.pixels, self.generator)
+        pixels = sample_pixels_of_image(image, config, self.generator)
         colours = observed_colours(image, pixels)
         log_likelihoods = particle_log_likelihoods(
             snap.poses, pixels.to(self.device), colours.to(self.device), intrinsics, render_rays, config.exponent, config.ray_chunk

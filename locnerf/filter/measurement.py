@@ -1,13 +1,22 @@
-"""Measurement model (the paper's eq. 5), in log space.
+"""Measurement model (the paper's eq. 5), in log space, and which pixels it looks at.
 
 For M pixels p_j of the observed image I (sampled once per update and shared by every particle),
 each particle X_i is weighted by ``w_i = (M / Σ_j ||I(p_j) − C(r(p_j, X_i))||²)^γ`` with γ = 4 in
 the paper, C the map's rendered colour. We return ``log w_i = γ (log M − log SSE_i)``.
+
+Pixels: the original draws them uniformly (``sampling = "uniform"``). A pixel in a flat region
+(sky, a white background) renders the same colour from every nearby pose and tells the particles
+apart only by noise; a pixel on an edge changes colour when the pose moves by a fraction of a
+pixel. ``sampling = "gradient"`` (the default) draws ``gradient_share`` of the M pixels with
+probability proportional to the observed image's gradient magnitude (dilated by one pixel, so that
+both sides of an edge are drawn) and the rest uniformly among the others, so the likelihood also
+keeps seeing the flat regions. On the lego object (70 % white background) this raised the iNeRF
+protocol's success from 45 % to 70 % at 100 updates (docs/RESULTS.md).
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Literal
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field
@@ -28,9 +37,25 @@ class MeasurementConfig(BaseModel):
 
     pixels: int = Field(64, ge=1, description="M: pixels sampled from each image and rendered per particle.")
     exponent: float = Field(4.0, gt=0, description="γ: power of the (M / SSE) likelihood (4 in the paper).")
+    sampling: Literal["uniform", "gradient"] = Field(
+        "gradient", description="How the M pixels are drawn: uniform (the original) or weighted by image gradient (module docstring)."
+    )
+    gradient_share: float = Field(0.75, ge=0, le=1, description="gradient sampling: fraction of the M pixels drawn by gradient weight.")
     ray_chunk: int = Field(
         65536, ge=1, description="Rays per render call; bounds memory when particles × pixels is large."
     )
+
+
+def _check_pixel_count(height: int, width: int, count: int) -> None:
+    if height < 1 or width < 1:
+        raise ValueError(f"image size {width}×{height}: expected a non-empty image")
+    if count < 1 or count > height * width:
+        raise ValueError(f"pixels M={count}: expected 1 <= M <= {height * width} (the image has {width}×{height} pixels)")
+
+
+def _pixel_coordinates(flat: torch.Tensor, width: int) -> torch.Tensor:
+    """Row-major pixel indices (M,) -> (M, 2) float32 (u, v)."""
+    return torch.stack(((flat % width).float(), torch.div(flat, width, rounding_mode="floor").float()), dim=-1)
 
 
 def sample_pixels(height: int, width: int, count: int, generator: torch.Generator) -> torch.Tensor:
@@ -39,12 +64,58 @@ def sample_pixels(height: int, width: int, count: int, generator: torch.Generato
     Returns:
         (M, 2) float32 as (u, v) = (column, row).
     """
-    if height < 1 or width < 1:
-        raise ValueError(f"image size {width}×{height}: expected a non-empty image")
-    if count < 1 or count > height * width:
-        raise ValueError(f"pixels M={count}: expected 1 <= M <= {height * width} (the image has {width}×{height} pixels)")
+    _check_pixel_count(height, width, count)
     flat = torch.randperm(height * width, generator=generator)[:count]
-    return torch.stack(((flat % width).float(), torch.div(flat, width, rounding_mode="floor").float()), dim=-1)
+    return _pixel_coordinates(flat, width)
+
+
+def gradient_weights(image: torch.Tensor) -> torch.Tensor:
+    """Sampling weight of every pixel: gradient magnitude of the grey image, dilated 3×3.
+
+    Args:
+        image: (H, W, 3) colours in [0, 1].
+    Returns:
+        (H·W,) float32 non-negative weights, row-major (index = v·W + u).
+    """
+    grey = image.float().mean(dim=-1)
+    gradient_u = torch.zeros_like(grey)
+    gradient_v = torch.zeros_like(grey)
+    gradient_u[:, 1:-1] = 0.5 * (grey[:, 2:] - grey[:, :-2])
+    gradient_v[1:-1, :] = 0.5 * (grey[2:, :] - grey[:-2, :])
+    magnitude = torch.sqrt(gradient_u * gradient_u + gradient_v * gradient_v)
+    return _dilate_rows(_dilate_rows(magnitude).T).T.flatten()
+
+
+def _dilate_rows(values: torch.Tensor) -> torch.Tensor:
+    """Maximum over each element and its left and right neighbours: (H, W) -> (H, W)."""
+    dilated = values.clone()
+    dilated[:, 1:] = torch.maximum(dilated[:, 1:], values[:, :-1])
+    dilated[:, :-1] = torch.maximum(dilated[:, :-1], values[:, 1:])
+    return dilated
+
+
+def sample_pixels_of_image(image: torch.Tensor, config: MeasurementConfig, generator: torch.Generator) -> torch.Tensor:
+    """``config.pixels`` distinct pixels of an observed image (H, W, 3), drawn as ``config.sampling`` says.
+
+    The gradient-weighted share is a weighted draw without replacement by exponential keys
+    (Efraimidis–Spirakis: the k smallest of ``E_i / w_i``, ``E_i ~ Exp(1)``), the rest the k
+    smallest of uniform keys among the pixels not chosen: two top-k passes over the image.
+
+    Returns:
+        (M, 2) float32 as (u, v) = (column, row).
+    """
+    height, width, count = int(image.shape[0]), int(image.shape[1]), config.pixels
+    if config.sampling == "uniform":
+        return sample_pixels(height, width, count, generator)
+    _check_pixel_count(height, width, count)
+    weights = gradient_weights(image.cpu()).double()
+    by_gradient = min(int(round(config.gradient_share * count)), int((weights > 0).sum()))
+    exponential_keys = torch.empty_like(weights).exponential_(generator=generator) / weights  # +inf where the weight is 0
+    chosen = torch.topk(exponential_keys, by_gradient, largest=False, sorted=False).indices
+    uniform_keys = torch.rand(weights.shape, dtype=torch.float64, generator=generator)
+    uniform_keys[chosen] = 2.0
+    others = torch.topk(uniform_keys, count - by_gradient, largest=False, sorted=False).indices
+    return _pixel_coordinates(torch.cat((chosen, others)), width)
 
 
 def observed_colours(image: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:

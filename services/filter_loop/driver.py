@@ -5,10 +5,13 @@ commands, liveliness changes and image arrivals into the normal lane (the image 
 one-slot buffer, newest only). One thread calls :meth:`FilterDriver.step` in a loop, which
 
 1. takes the most urgent message, handles it and publishes its output at once (a pose leaves as
-   soon as its odometry has been handled, before anything else is computed);
+   soon as its odometry has been handled, before anything else is computed; the particles'
+   prediction with that odometry runs right after the pose has been published);
 2. returns if odometry is waiting (the next step handles it): no update work while a pose is due;
-3. takes the newest image; returns again if odometry arrived meanwhile;
-4. runs the periodic work (expire, start an update, particle cloud, status) and publishes it.
+3. recomputes the estimate if a merge changed the particles (a pose due meanwhile does it itself);
+   returns again if odometry arrived;
+4. takes the newest image; returns again if odometry arrived meanwhile;
+5. runs the periodic work (expire, start an update, particle cloud, status) and publishes it.
 
 An odometry message therefore waits at most for one piece of non-odometry work that had already
 started when it arrived. The durations of every kind of work and the odometry's wait are kept in
@@ -112,6 +115,16 @@ class FilterDriver:
             if only_if_output:
                 kind += ":" + "+".join(sorted({"update_start" if "/update/request/" in key else key.rsplit("/", 1)[-1] for key, _ in outgoing}))
             self.timings.record(kind, self.clock() - started)
+        if kind == "odometry":
+            predict_started = self.clock()
+            self.loop.predict_pending()
+            self.timings.record("predict", self.clock() - predict_started)
+
+    def _run_estimate(self) -> None:
+        """Recompute the estimate after a merge, as its own piece of work (recorded if done)."""
+        started = self.clock()
+        if self.loop.refresh_estimate():
+            self.timings.record("estimate", self.clock() - started)
 
     def step(self, timeout: float = 0.01) -> None:
         """One turn of the schedule (module docstring), waiting up to ``timeout`` s for a message."""
@@ -121,6 +134,9 @@ class FilterDriver:
             if kind == "odometry":
                 self.timings.record_wait(self.clock() - arrived)
             self._run(kind, lambda: self._handlers[kind](key, payload))
+        if self.inbox.waiting(URGENT):
+            return
+        self._run_estimate()
         if self.inbox.waiting(URGENT):
             return
         self._run("image", self._take_image, only_if_output=True)

@@ -19,8 +19,9 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.field.protocol import MapNormalization
+from locnerf.filter.estimate import PoseEstimate as FilterEstimate, carry_estimate
 from locnerf.filter.localizer import Localizer, SearchRegion
-from locnerf.filter.measurement import observed_colours, sample_pixels
+from locnerf.filter.measurement import observed_colours, sample_pixels_of_image
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, decode_image, encode
@@ -101,6 +102,10 @@ class FilterLoop:
         self._image: tuple[ImageHeader, np.ndarray] | None = None
         self._last_particles = self._last_status = -float("inf")
         self._state_file = Path(config.state_file) if config.state_file else None
+        self._estimate: FilterEstimate | None = None
+        self._estimate_stale = False
+        self._pending_increment: torch.Tensor | None = None
+        self._prediction_pending = False
         self._start()
 
     # ------------------------------------------------------------------ initialisation
@@ -112,11 +117,38 @@ class FilterLoop:
             self.history.append(saved.stamp, saved.T_odom_body)
         elif self.config.start == "global":
             self.localizer.initialize_uniform(self.region)
+        self._refresh_estimate()
 
     def _initialize_around(self, T_world_cam: torch.Tensor, covariance: torch.Tensor) -> None:
         mean = metric_to_map(T_world_cam.double(), self.normalization)
         cov = convert_covariance(covariance, self.normalization, to_map=True) + _COVARIANCE_JITTER * torch.eye(6, dtype=torch.float64)
         self.localizer.initialize_gaussian(mean, cov)
+
+    def _refresh_estimate(self) -> None:
+        """Recompute the published estimate from the particles (after they were weighed or re-drawn)."""
+        self._estimate = self.localizer.estimate() if self.running else None
+        self._estimate_stale = False
+
+    def refresh_estimate(self) -> bool:
+        """Recompute the estimate if a merge has changed the particles since; whether it did.
+
+        A merge only marks the estimate stale, so that the driver can publish a waiting pose
+        between the merge and this pass over the particles; :meth:`handle_odometry` refreshes
+        a stale estimate itself, so a pose always reflects every merged update."""
+        if not self._estimate_stale:
+            return False
+        self._refresh_estimate()
+        return True
+
+    def predict_pending(self) -> None:
+        """Move the particles by the odometry already published as a pose (see :meth:`handle_odometry`).
+
+        The driver calls this right after publishing the pose; every other handler calls it first,
+        so the particles are always predicted before they are used."""
+        if self._prediction_pending:
+            self._prediction_pending = False
+            self.localizer.predict(self._pending_increment)
+            self._pending_increment = None
 
     @property
     def running(self) -> bool:
@@ -128,7 +160,14 @@ class FilterLoop:
 
     # ------------------------------------------------------------------ handlers
     def handle_odometry(self, payload: bytes) -> Outgoing:
-        """Predict with the increment since the previous odometry; publish the pose."""
+        """Publish the pose at this odometry stamp; the particles' prediction follows.
+
+        The pose is the last estimate computed from the particles, carried by every increment
+        since as eq. 4 carries the particles (:func:`carry_estimate`: the mean moves with the
+        odometry, the covariance grows by the prediction noise), so the pose costs no pass over
+        the particles. The prediction itself (eq. 4 on every particle) is left pending until
+        :meth:`predict_pending`, which the driver calls once the pose is out."""
+        self.predict_pending()
         try:
             message = decode(payload, Odometry)
             pose = torch.tensor(message.T_odom_body, dtype=torch.float64)
@@ -151,11 +190,14 @@ class FilterLoop:
         self.rates["odometry"].tick()
         if not self.running:
             return []
-        self.localizer.predict(None if increment is None else increment_to_map(increment, self.normalization))
+        self.refresh_estimate()
+        increment = None if increment is None else increment_to_map(increment, self.normalization)
+        self._estimate = carry_estimate(self._estimate, increment, self.localizer.noise_sigma())
+        self._pending_increment, self._prediction_pending = increment, True
         return [self._pose_message(message.stamp)]
 
     def _pose_message(self, stamp: float) -> tuple[str, bytes]:
-        estimate = self.localizer.estimate()
+        estimate = self._estimate
         pose = map_to_metric(estimate.pose, self.normalization)
         covariance = convert_covariance(estimate.covariance, self.normalization, to_map=False)
         covariance = 0.5 * (covariance + covariance.T)
@@ -193,6 +235,7 @@ class FilterLoop:
 
     def handle_result(self, payload: bytes) -> Outgoing:
         """Store a shard's result; merge when the update is complete."""
+        self.predict_pending()
         try:
             completed = self.dispatcher.receive(decode(payload, UpdateResult), self.clock())
         except DecodeError as error:
@@ -207,11 +250,13 @@ class FilterLoop:
         if report.outcome == "merged":
             self.rates["update"].tick()
             self.latencies.append(completed.latency)
+            self._estimate_stale = True
         logger.debug("update %s: ESS %.1f, %d particles, stage %s", report.outcome, report.effective_sample_size, report.particle_count, report.stage)
         return []
 
     def handle_initial_pose(self, payload: bytes) -> Outgoing:
         """Re-initialise around the commanded metric pose."""
+        self.predict_pending()
         try:
             command = decode(payload, InitialPoseCommand)
             pose = torch.tensor(command.T_world_cam, dtype=torch.float64)
@@ -224,10 +269,12 @@ class FilterLoop:
             return []
         logger.info("initial pose command: re-initialising")
         self._initialize_around(pose, torch.tensor(command.covariance, dtype=torch.float64))
+        self._refresh_estimate()
         return []
 
     def handle_global_localization(self, payload: bytes) -> Outgoing:
         """Re-initialise over the whole map."""
+        self.predict_pending()
         try:
             decode(payload, GlobalLocalizationCommand)
         except DecodeError as error:
@@ -235,6 +282,7 @@ class FilterLoop:
             return []
         logger.info("global localization command: re-initialising over the map")
         self.localizer.initialize_uniform(self.region)
+        self._refresh_estimate()
         return []
 
     def worker_changed(self, token_key: str, alive: bool) -> Outgoing:
@@ -253,6 +301,7 @@ class FilterLoop:
     # ------------------------------------------------------------------ periodic work
     def tick(self) -> Outgoing:
         """Expire or start an update; publish particles and status when due."""
+        self.predict_pending()
         now = self.clock()
         self.dispatcher.expire(now)
         out: Outgoing = []
@@ -279,8 +328,8 @@ class FilterLoop:
         snapshot = self.localizer.snapshot(carry)
         measurement = self.localizer.config.measurement
         intrinsics = header.intrinsics
-        chosen = sample_pixels(intrinsics.height, intrinsics.width, measurement.pixels, self.localizer.generator)
         image = torch.from_numpy(pixels).float() / 255.0
+        chosen = sample_pixels_of_image(image, measurement, self.localizer.generator)
         colours = observed_colours(image, chosen)
         return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now))
 

@@ -62,6 +62,11 @@ class IngestConfig(BaseModel):
     prefetch_nice: int = Field(
         10, ge=0, le=19, description="Niceness added to the producing thread: frame rendering yields the CPU to the release of odometry."
     )
+    prefill: bool = Field(
+        False,
+        description="Before the first release, wait until prefetch_events events are produced (or the source ended): "
+        "a load test renders its whole stream before the clock starts, so the machine it measures does only the services' work.",
+    )
     torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
     transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
 
@@ -115,7 +120,13 @@ def stream(bus: Bus, config: IngestConfig, stop: threading.Event) -> int:
     sent = 0
     with contextlib.ExitStack() as stack:
         if config.prefetch_events:
-            events = stack.enter_context(PrefetchedEvents(events, config.prefetch_events, config.prefetch_nice))
+            prefetched = stack.enter_context(PrefetchedEvents(events, config.prefetch_events, config.prefetch_nice))
+            if config.prefill:
+                logger.info("producing up to %d events before the first release", config.prefetch_events)
+                while not prefetched.wait_until_filled(0.2):
+                    if stop.is_set():
+                        return sent
+            events = prefetched
         for event in Pacer(config.speed).paced(events, stop.is_set):
             bus.publish(*event_message(config.robot_id, event))
             sent += 1

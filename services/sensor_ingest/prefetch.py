@@ -49,6 +49,7 @@ class PrefetchedEvents(Generic[Event]):
             raise ValueError(f"producer niceness {nice}: expected >= 0 (only lowering the priority needs no privileges)")
         self._queue: queue.Queue[object] = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
+        self._filled = threading.Event()
         self._nice = nice
         self._thread = threading.Thread(target=self._produce, args=(iter(events),), name="ingest-prefetch", daemon=True)
         self._thread.start()
@@ -66,16 +67,25 @@ class PrefetchedEvents(Generic[Event]):
             self._offer(_END)
         except BaseException as error:  # noqa: BLE001 - handed to the consumer, which re-raises it
             self._offer(_Failure(error))
+        finally:
+            self._filled.set()
 
     def _offer(self, item: object) -> bool:
         """Queue ``item``, waiting for room; False once closed."""
         while not self._stop.is_set():
             try:
                 self._queue.put(item, timeout=0.1)
+                if self._queue.full():
+                    self._filled.set()
                 return True
             except queue.Full:
                 continue
         return False
+
+    def wait_until_filled(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s until ``depth`` events wait in the queue or the source has
+        ended; whether that happened."""
+        return self._filled.wait(timeout)
 
     def __iter__(self) -> Iterator[Event]:
         while True:

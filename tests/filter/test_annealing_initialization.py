@@ -73,7 +73,8 @@ def test_presets_reproduce_the_original_parameters():
     assert [c.convergence_protection.count for c in (llff, global_, jackal)] == [10, 10, 15]
     assert {c.convergence_protection.half_width for c in (llff, global_, jackal)} == {0.2}
     assert {(c.mlp_coarse_samples, c.mlp_fine_samples) for c in (llff, global_, jackal)} == {(64, 64)}
-    assert set(PRESETS) == {"llff", "llff_global", "jackal", "tracking"}
+    assert {c.measurement.sampling for c in (llff, global_, jackal)} == {"uniform"}
+    assert set(PRESETS) == {"llff", "llff_global", "jackal", "tracking", "precise"}
     assert not any(c.recovery.enabled for c in (llff, global_, jackal))
 
 
@@ -81,6 +82,13 @@ def test_tracking_preset_is_llff_global_with_recovery():
     tracking, global_ = preset("tracking"), preset("llff_global")
     assert tracking.recovery.enabled
     assert (tracking.particles, tracking.motion) == (global_.particles, global_.motion)
+
+
+def test_precise_preset_is_llff_keeping_its_particles_with_gradient_pixels():
+    precise, llff = preset("precise"), preset("llff")
+    assert precise.annealing.reduced_particles == precise.particles == llff.particles
+    assert precise.measurement.sampling == "gradient" and preset("tracking").measurement.sampling == "uniform"
+    assert (precise.motion, precise.measurement.pixels) == (llff.motion, llff.measurement.pixels)
 
 
 def test_toml_config_overrides_a_preset(tmp_path):

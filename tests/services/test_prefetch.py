@@ -65,3 +65,21 @@ def test_the_producer_thread_runs_at_the_added_niceness_and_the_caller_keeps_its
 def test_bad_settings_are_refused(depth, nice):
     with pytest.raises(ValueError, match="expected >= "):
         PrefetchedEvents(range(3), depth=depth, nice=nice)
+
+
+def test_wait_until_filled_returns_once_depth_events_wait_or_the_source_ended():
+    release = threading.Event()
+
+    def gated() -> Iterator[int]:
+        yield 0
+        release.wait(10)
+        yield from range(1, 6)
+
+    with PrefetchedEvents(gated(), depth=3) as events:
+        assert not events.wait_until_filled(0.3)  # one event produced, the source waits
+        release.set()
+        assert events.wait_until_filled(5.0)  # three events wait in the queue
+        assert list(events) == list(range(6))
+    with PrefetchedEvents(range(2), depth=8) as short:
+        assert short.wait_until_filled(5.0)  # the source ended before the queue filled
+        assert list(short) == [0, 1]
