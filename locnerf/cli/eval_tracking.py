@@ -46,6 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--yaw-drift", type=float, default=0.2, help="odometry yaw drift, degrees per second")
     parser.add_argument("--noise", type=float, default=2e-3, help="odometry white translation noise per message, metres per axis")
     parser.add_argument("--rotation-noise", type=float, default=0.057, help="odometry white rotation noise per message, degrees per axis")
+    parser.add_argument("--updates-per-image", type=int, default=1, help="updates on each image (noise-only prediction between them)")
     parser.add_argument("--init", choices=("global", "gaussian"), default="global", help="start: the paper's global cube, or a Gaussian around the truth")
     parser.add_argument("--kidnap-at", type=float, default=None, help="seconds: the camera jumps half a loop ahead, unseen by the odometry")
     parser.add_argument("--no-recovery", action="store_true", help="turn kidnapping recovery off in the chosen configuration")
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     region = search_region(radiance_map) if config.recovery.enabled else None
     localizer = Localizer(config, torch.Generator().manual_seed(args.seed), device, region=region)
     image_generator = torch.Generator().manual_seed(args.seed + 1)
-    record = run_tracking(scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet)
+    record = run_tracking(scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet, updates_per_image=args.updates_per_image)
     criterion = ConvergenceConfig()
     summary = summarize_tracking(record, criterion)
     if args.plots is not None:

@@ -107,8 +107,17 @@ def run_tracking(
     start: StartConfig,
     image_generator: torch.Generator,
     show_progress: bool = True,
+    updates_per_image: int = 1,
 ) -> TrackingRecord:
-    """Predict on every odometry stamp, update on every image, record the estimate's errors."""
+    """Predict on every odometry stamp, update on every image, record the estimate's errors.
+
+    ``updates_per_image`` > 1 refines on each image as the single-image protocol does: after the
+    first update, noise-only predictions and updates (fresh pixels each) on the same image, as a
+    live filter could while it waits for the next frame when its updates are faster than the
+    camera (the services do not do this).
+    """
+    if updates_per_image < 1:
+        raise ValueError(f"updates per image {updates_per_image}: expected >= 1")
     scale = radiance_map.normalization.scale
     intrinsics = scenario.path.intrinsics
     start_particles(localizer, scenario.truth[0], start, radiance_map.normalization.up)
@@ -121,10 +130,13 @@ def run_tracking(
             localizer.predict(increment.to(localizer.device, localizer.dtype))
         if tick in image_ticks:
             image = scenario.image(tick, image_generator).to(radiance_map.device)
-            report = localizer.update(image, intrinsics, radiance_map.render_rays)
-            updates.append(tick)
-            if report.injected:
-                logger.info("t = %.2f s: %d recovery particles injected", float(scenario.stamps[tick]), report.injected)
+            for repeat in range(updates_per_image):
+                if repeat > 0:
+                    localizer.predict()
+                report = localizer.update(image, intrinsics, radiance_map.render_rays)
+                updates.append(tick)
+                if report.injected:
+                    logger.info("t = %.2f s: %d recovery particles injected", float(scenario.stamps[tick]), report.injected)
         estimate = localizer.estimate().pose.double().cpu()
         translation.append(float(translation_error(estimate, scenario.truth[tick])))
         rotation.append(float(rotation_error_deg(estimate, scenario.truth[tick])))

@@ -120,6 +120,18 @@ def test_reduced_world_run_converges_then_notices_the_kidnapping(caplog) -> None
     assert after > 5 * max(before, 1), injected  # measured: 1800 after, 197 in the two updates before the jump
 
 
+def test_updates_per_image_refine_on_each_image() -> None:
+    """Two updates per image: twice the updates, each image's ticks listed twice; 0 is refused."""
+    world = ProceduralWorld(WorldConfig(image_width=32, image_height=24), "cpu")
+    path = WorldPath(world, FigureEightTrajectory(), CameraConfig())
+    scenario = build_scenario(path, ScenarioConfig(duration=2.0, seed=0), world.normalization)
+    localizer = Localizer(preset("tracking", particles=60), torch.Generator().manual_seed(0), "cpu", region=search_region(world))
+    record = run_tracking(scenario, world, localizer, StartConfig(mode="gaussian"), torch.Generator().manual_seed(1), show_progress=False, updates_per_image=2)
+    assert record.update_ticks == [tick for tick in scenario.image_ticks for _ in range(2)]
+    with pytest.raises(ValueError, match="updates per image 0"):
+        run_tracking(scenario, world, localizer, StartConfig(mode="gaussian"), torch.Generator().manual_seed(1), show_progress=False, updates_per_image=0)
+
+
 def test_cli_refuses_a_missing_sequence_folder(tmp_path, caplog) -> None:
     missing = tmp_path / "nowhere"
     assert main(["eval", "tracking", "--map", "world", "--sequence", str(missing), "--quiet"]) == 2
