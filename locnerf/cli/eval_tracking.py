@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from locnerf.cli.map_source import WORLD, open_map
+from locnerf.cli.map_source import WORLD, open_map, recovery_keyframes
 from locnerf.config import load_config, preset
 from locnerf.data import read_nerf_synthetic
 from locnerf.devices import resolve_device
@@ -101,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
     )
     config = localizer_config(args)
     region = search_region(radiance_map) if config.recovery.enabled else None
-    localizer = Localizer(config, torch.Generator().manual_seed(args.seed), device, region=region)
+    keyframes = recovery_keyframes(config, radiance_map, path.intrinsics, args.seed + 2)
+    localizer = Localizer(config, torch.Generator().manual_seed(args.seed), device, region=region, keyframes=keyframes)
     image_generator = torch.Generator().manual_seed(args.seed + 1)
     record = run_tracking(scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet, updates_per_image=args.updates_per_image)
     criterion = ConvergenceConfig()

@@ -1,16 +1,24 @@
-"""Opening the map a command names, and the target views of single-image trials."""
+"""Opening the map a command names, the target views of single-image trials, and keyframes."""
 
 from __future__ import annotations
 
+import logging
+import time
 from collections.abc import Iterator
 
 import torch
 
 from locnerf.field.protocol import RadianceMap
-from locnerf.render.image import render_image
+from locnerf.filter.keyframes import KeyframeIndex, index_from_views, thumbnail_camera
+from locnerf.filter.localizer import LocalizerConfig
+from locnerf.geometry.validation import validate_poses
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import RenderRays, render_image, render_views
 from locnerf.sim.world import ProceduralWorld
 
 WORLD = "world"
+
+logger = logging.getLogger(__name__)
 
 
 def open_map(spec: str, device: torch.device) -> RadianceMap:
@@ -20,6 +28,38 @@ def open_map(spec: str, device: torch.device) -> RadianceMap:
     from locnerf.field.map_file import load_map
 
     return load_map(spec, device)
+
+
+def keyframe_poses(radiance_map: RadianceMap, generator: torch.Generator, world_count: int = 200) -> torch.Tensor:
+    """(K, 4, 4) float64 poses for a keyframe index: a map file's reference poses (every one), or
+    ``world_count`` random plausible poses of the procedural world."""
+    if isinstance(radiance_map, ProceduralWorld):
+        return torch.stack([radiance_map.sample_camera_pose(generator) for _ in range(world_count)])
+    return radiance_map.reference_poses().double()
+
+
+def build_keyframe_index(
+    render_rays: RenderRays, poses: torch.Tensor, intrinsics: PinholeIntrinsics, width: int = 16, supersample: int = 4
+) -> KeyframeIndex:
+    """Render the map's thumbnail at every keyframe pose (K, 4, 4) (map frame, on the renderer's
+    device) for images of ``intrinsics``: ``width`` pixels wide, from ``supersample``² rays each."""
+    validate_poses(poses, name="keyframe poses")
+    if poses.ndim != 3 or poses.shape[0] == 0:
+        raise ValueError(f"keyframe poses: expected shape (K>=1, 4, 4), got {tuple(poses.shape)}")
+    views = render_views(render_rays, poses.float(), thumbnail_camera(intrinsics, width, supersample))
+    return index_from_views(poses, views, intrinsics, width)
+
+
+def recovery_keyframes(config: LocalizerConfig, radiance_map: RadianceMap, intrinsics: PinholeIntrinsics, seed: int) -> KeyframeIndex | None:
+    """The map's keyframe index for images of ``intrinsics``, when ``config``'s recovery draws
+    around keyframes (``recovery.keyframe_share`` > 0); None otherwise."""
+    if not config.recovery.enabled or config.recovery.keyframe_share == 0:
+        return None
+    poses = keyframe_poses(radiance_map, torch.Generator().manual_seed(seed))
+    started = time.perf_counter()
+    index = build_keyframe_index(radiance_map.render_rays, poses.to(radiance_map.device), intrinsics)
+    logger.info("keyframe index: %d keyframes, spacing %.3f map units, built in %.2f s", len(index), index.spacing, time.perf_counter() - started)
+    return index
 
 
 def target_views(radiance_map: RadianceMap, count: int, generator: torch.Generator) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:

@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
+from locnerf.filter.motion import PivotNoise
 from locnerf.filter.particles import ParticleSet, weighted_position_spread
 from locnerf.filter.resampling import effective_sample_size
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
@@ -65,7 +66,7 @@ def estimate_from_particles(particles: ParticleSet, stage: str, include: torch.T
     )
 
 
-def carry_estimate(estimate: PoseEstimate, increment: torch.Tensor | None, sigma: torch.Tensor) -> PoseEstimate:
+def carry_estimate(estimate: PoseEstimate, increment: torch.Tensor | None, sigma: torch.Tensor, pivot: PivotNoise | None = None) -> PoseEstimate:
     """The estimate moved by one prediction step (eq. 4) without touching the particles.
 
     Eq. 4 moves every particle by ``X·O·Exp(δ)``; its mean moves to ``pose·O`` (δ has zero mean)
@@ -79,6 +80,7 @@ def carry_estimate(estimate: PoseEstimate, increment: torch.Tensor | None, sigma
         estimate: the last estimate computed from the particles (or carried since).
         increment: (4, 4) odometry increment ``T_prev_curr`` in map units, or None (noise only).
         sigma: (6,) prediction-noise standard deviations (rotation, translation) of the step.
+        pivot: the step's pivot noise, if any (its covariance is added too).
     Returns:
         The moved estimate; spread from the carried position covariance; ESS, count and stage kept.
     """
@@ -94,6 +96,8 @@ def carry_estimate(estimate: PoseEstimate, increment: torch.Tensor | None, sigma
         covariance = jacobian @ covariance @ jacobian.T
         pose = pose @ increment
     covariance = covariance + torch.diag(sigma.double() ** 2)
+    if pivot is not None:
+        covariance = covariance + pivot.covariance()
     world_position_covariance = pose[:3, :3] @ covariance[3:, 3:] @ pose[:3, :3].T
     spread = float(torch.sqrt(torch.diagonal(world_position_covariance).clamp_min(0.0)).max())
     return replace(estimate, pose=pose, covariance=covariance, spread=spread)

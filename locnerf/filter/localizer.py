@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -19,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
 from locnerf.filter.estimate import PoseEstimate, estimate_from_particles
+from locnerf.filter.keyframes import KeyframeIndex
 from locnerf.filter.lineage import NO_ANCESTOR, Lineage, lookup
 from locnerf.filter.measurement import (
     MeasurementConfig,
@@ -27,14 +29,16 @@ from locnerf.filter.measurement import (
     particle_log_likelihoods,
     sample_pixels_of_image,
 )
-from locnerf.filter.motion import MotionNoiseConfig, propagate_poses
+from locnerf.filter.motion import MotionNoiseConfig, PivotNoise, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
-from locnerf.filter.recovery import InjectionPlan, RecoveryConfig, RecoveryMonitor, injection_poses
+from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 
 logger = logging.getLogger(__name__)
+
+CandidateSource = Callable[[], KeyframeCandidates | None]
 
 
 class ConvergenceProtectionConfig(BaseModel):
@@ -115,6 +119,9 @@ class Localizer:
         device: where particle poses live and rendering happens.
         dtype: dtype of particle poses (float32 default; float64 for oracles).
         region: search region for recovery injections (required when recovery is enabled).
+        keyframes: the map's keyframes; when a merge injects recovery particles, the update's image
+            is matched against them and a share (``recovery.keyframe_share``) of the fresh
+            particles is drawn around the best matches.
     """
 
     def __init__(
@@ -124,6 +131,7 @@ class Localizer:
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
         region: SearchRegion | None = None,
+        keyframes: KeyframeIndex | None = None,
     ) -> None:
         if config.recovery.enabled and region is None:
             raise ValueError("recovery is enabled but no search region was given: pass region=SearchRegion(...)")
@@ -132,6 +140,8 @@ class Localizer:
         self.device = torch.device(device)
         self.dtype = dtype
         self.region = region
+        self.keyframes = keyframes
+        self._warned_camera = False
         self.epoch = 0
         self.stage = AnnealingStage.COARSE
         self.particles: ParticleSet | None = None
@@ -181,6 +191,10 @@ class Localizer:
         """(6,) current prediction-noise standard deviations (annealed)."""
         return self.config.motion.sigma_vector(noise_scale(self.stage, self.config.annealing))
 
+    def noise_pivot(self) -> PivotNoise | None:
+        """The current pivot noise (annealed like δ), or None."""
+        return self.config.motion.pivot_noise(noise_scale(self.stage, self.config.annealing))
+
     def predict(self, odometry: torch.Tensor | None = None) -> None:
         """Eq. 4 for every particle: move by the odometry increment ``T_prev_curr`` (4, 4), add noise."""
         particles = self._require_particles()
@@ -188,7 +202,7 @@ class Localizer:
             validate_poses(odometry, name="odometry increment")
             if odometry.ndim != 2:
                 raise ValueError(f"odometry increment: expected shape (4, 4), got {tuple(odometry.shape)}")
-        particles.poses = propagate_poses(particles.poses, odometry, self.noise_sigma(), self.generator)
+        particles.poses = propagate_poses(particles.poses, odometry, self.noise_sigma(), self.generator, self.noise_pivot())
 
     # ----------------------------------------------------------------- delayed update
     def _protect_convergence(self, particles: ParticleSet) -> None:
@@ -227,12 +241,21 @@ class Localizer:
             injected=injected,
         )
 
-    def merge(self, epoch: int, generation: int, ids: torch.Tensor, log_likelihoods: torch.Tensor) -> MergeReport:
+    def merge(
+        self,
+        epoch: int,
+        generation: int,
+        ids: torch.Tensor,
+        log_likelihoods: torch.Tensor,
+        find_candidates: CandidateSource | None = None,
+    ) -> MergeReport:
         """Merge an update computed on snapshot ``(epoch, generation)``.
 
         Args:
             ids: (K,) int64 particle ids of the snapshot.
             log_likelihoods: (K,) log-likelihoods of those particles (−inf allowed; NaN counts as −inf).
+            find_candidates: called, only when this merge injects recovery particles, for the
+                keyframes that match the update's image (e.g. ``lambda: localizer.keyframe_candidates(image, intrinsics)``).
         Returns:
             What happened (see :class:`MergeReport`).
         """
@@ -268,7 +291,8 @@ class Localizer:
 
         combined = particles.log_weights.double().cpu() + per_particle
         particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
-        injected = self._resample(particles, self._recovery.observe(self._log_best_likelihood(particles, per_particle)))
+        plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
+        injected = self._resample(particles, plan, find_candidates)
         self.counters["merged"] += 1
         return self._report("merged", injected)
 
@@ -285,7 +309,7 @@ class Localizer:
         survivors = (particles.parent_ids != NO_ANCESTOR).cpu()
         return float(per_particle[survivors].max() if bool(survivors.any()) else per_particle.max())
 
-    def _resample(self, particles: ParticleSet, plan: InjectionPlan) -> int:
+    def _resample(self, particles: ParticleSet, plan: InjectionPlan, find_candidates: CandidateSource | None) -> int:
         """Resample to the stage's particle count, inject recovery particles by ``plan``, start a new generation."""
         weights = particles.weights.double()
         # A filter that injects believes it is lost: back to the COARSE stage (full noise and count).
@@ -298,8 +322,10 @@ class Localizer:
         injected = int(round(plan.fraction * target))
         if injected > 0:
             estimate = estimate_from_particles(particles, self.stage.value).pose
-            share = self.config.recovery.local_share
-            fresh = injection_poses(plan, injected, share, estimate, self.region.bounds(), self.region.up, self.generator)
+            candidates = find_candidates() if find_candidates is not None else None
+            fresh = injection_poses(
+                plan, injected, self.config.recovery, estimate, self.region.bounds(), self.region.up, self.generator, candidates
+            )
             replaced = torch.randperm(target, generator=self.generator)[:injected].to(self.device)
             poses[replaced] = fresh.to(self.device, self.dtype)
             parents[replaced] = NO_ANCESTOR
@@ -330,7 +356,21 @@ class Localizer:
         log_likelihoods = particle_log_likelihoods(
             snap.poses, pixels.to(self.device), colours.to(self.device), intrinsics, render_rays, config.exponent, config.ray_chunk
         )
-        return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods)
+        return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics))
+
+    def keyframe_candidates(self, image: torch.Tensor, intrinsics: PinholeIntrinsics) -> KeyframeCandidates | None:
+        """The keyframes most like ``image`` (H, W, 3) seen with ``intrinsics``, when recovery draws
+        around keyframes; None otherwise, or when the camera differs from the keyframes' (warned once)."""
+        recovery = self.config.recovery
+        if self.keyframes is None or not recovery.enabled or recovery.keyframe_share == 0:
+            return None
+        if not self.keyframes.matches(intrinsics):
+            if not self._warned_camera:
+                logger.warning("image camera %s differs from the keyframes' %s: recovery draws no particles around keyframes", intrinsics, self.keyframes.camera)
+                self._warned_camera = True
+            return None
+        poses, _ = self.keyframes.query(image, recovery.keyframe_count)
+        return KeyframeCandidates(poses, self.keyframes.spacing)
 
     def estimate(self) -> PoseEstimate:
         """The current estimate (weighted mean pose, covariance, spread, ESS).

@@ -13,9 +13,13 @@ localizer's choice, see ``Localizer._log_best_likelihood``), and a drop of up to
 (``tolerance``) is tolerated, since a few nats separate a view seen from 2 cm off from one seen
 exactly, or a plain wall from a textured one; τ = 0 is augmented MCL.
 
-Where the fresh particles go: a share ``local_share`` is drawn around the current estimate (a
-position cube of half side ``r_k``, a yaw offset within ``±ψ_k``, the estimate's roll and pitch),
-the rest uniformly over the search region (uniform yaw, the estimate's roll and pitch). ``r_k``
+Where the fresh particles go: when the update's image was matched against the map's keyframes
+(:mod:`locnerf.filter.keyframes`), a share ``keyframe_share`` is drawn around the best-matching
+keyframes (Gaussian, ``keyframe_position_sigma`` × the keyframes' spacing per axis and
+``keyframe_rotation_sigma_deg`` per axis, in the keyframe's frame). Of the others, a share
+``local_share`` is drawn around the current estimate (a position cube of half side ``r_k``, a yaw
+offset within ``±ψ_k``, the estimate's roll and pitch), the rest uniformly over the search region
+(uniform yaw, the estimate's roll and pitch). ``r_k``
 and ``ψ_k`` grow geometrically with the number ``k`` of consecutive updates that injected:
 ``r_k = min(r_max, r_0 g^k)``, ``ψ_k = min(180°, ψ_0 g^k)``. A small jump (a slip, a drift that
 ran away) is found by the first, dense local draws; a large one by the later, wider ones or by the
@@ -24,6 +28,7 @@ uniform share, whose density does not depend on how long the filter has been los
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -31,6 +36,9 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.filter.initialization import global_particles, uniform_particles
+from locnerf.geometry.se3 import se3_exp
+
+logger = logging.getLogger(__name__)
 
 
 class RecoveryConfig(BaseModel):
@@ -58,6 +66,14 @@ class RecoveryConfig(BaseModel):
         1.5, ge=1, description="g: factor by which the local radius and yaw bound grow with each further consecutive injecting update."
     )
     local_max_radius: float = Field(2.0, gt=0, description="r_max: upper bound on the local radius, map units.")
+    keyframe_share: float = Field(
+        0.0, ge=0, le=1, description="Share of the injected particles drawn around the keyframes that best match the image (when a keyframe index is given)."
+    )
+    keyframe_count: int = Field(8, ge=1, description="How many best-matching keyframes the keyframe share is spread over (equally).")
+    keyframe_position_sigma: float = Field(
+        0.5, gt=0, description="Position standard deviation around a keyframe per axis, as a multiple of the keyframes' spacing."
+    )
+    keyframe_rotation_sigma_deg: float = Field(5.0, ge=0, description="Rotation standard deviation around a keyframe per axis, degrees.")
 
     @model_validator(mode="after")
     def _consistent(self) -> "RecoveryConfig":
@@ -116,6 +132,8 @@ class RecoveryMonitor:
             if config.enabled:
                 ratio = math.exp(min(0.0, self.log_fast - self.log_slow + config.tolerance))
                 fraction = min(config.max_fraction, max(0.0, 1.0 - ratio))
+        if self.log_fast is not None and self.log_slow is not None:
+            logger.debug("recovery: log-likelihood %.2f, fast %.2f, slow %.2f, fraction %.2f", log_mean_likelihood, self.log_fast, self.log_slow, fraction)
         growth = config.local_growth**self.streak
         plan = InjectionPlan(
             fraction=fraction,
@@ -126,28 +144,67 @@ class RecoveryMonitor:
         return plan
 
 
+@dataclass(frozen=True)
+class KeyframeCandidates:
+    """Keyframes that look like the current image: where a lost robot probably is.
+
+    Attributes:
+        poses: (C, 4, 4) float64 keyframe poses, best match first.
+        spacing: the keyframes' typical spacing, map units (scales the draws around them).
+    """
+
+    poses: torch.Tensor
+    spacing: float
+
+
+def keyframe_particles(
+    candidates: KeyframeCandidates, count: int, position_sigma: float, rotation_sigma: float, generator: torch.Generator
+) -> torch.Tensor:
+    """``count`` poses ``K_j · Exp(δ)`` spread equally over the candidates ``K_j`` (best first for
+    the remainder), δ ~ N(0, diag(rotation_sigma² I₃, position_sigma² I₃)) in the keyframe's frame.
+
+    Returns:
+        (count, 4, 4) float64 on the CPU.
+    """
+    poses = candidates.poses.double().cpu()
+    which = torch.arange(count) % poses.shape[0]
+    sigma = torch.tensor([rotation_sigma] * 3 + [position_sigma] * 3, dtype=torch.float64)
+    return poses[which] @ se3_exp(torch.randn(count, 6, dtype=torch.float64, generator=generator) * sigma)
+
+
 def injection_poses(
     plan: InjectionPlan,
     count: int,
-    share_local: float,
+    config: RecoveryConfig,
     estimate: torch.Tensor,
     bounds: torch.Tensor,
     up: tuple[float, float, float],
     generator: torch.Generator,
+    candidates: KeyframeCandidates | None = None,
 ) -> torch.Tensor:
-    """Fresh particle poses: ``round(count · share_local)`` around the estimate, the rest uniform.
+    """Fresh particle poses: around the candidate keyframes, around the estimate, and uniform.
+
+    ``round(count · keyframe_share)`` go around the candidates (none without candidates); of the
+    rest, ``round(rest · local_share)`` around the estimate and the others uniformly.
 
     Args:
         plan: radius and yaw bound of the local draws.
+        config: the shares and spreads.
         estimate: (4, 4) current estimate; its position centres the local cube, its rotation gives
-            every fresh particle's roll and pitch (and the local particles' yaw before the offset).
+            the local and uniform particles' roll and pitch (and the local particles' yaw before
+            the offset).
         bounds: (2, 3) search region [min, max] for the uniform draws.
         up: world axis opposite to gravity (the yaw axis).
+        candidates: keyframes matching the image, or None.
     Returns:
-        (count, 4, 4) float64 on the CPU, local draws first.
+        (count, 4, 4) float64 on the CPU: keyframe draws, then local, then uniform.
     """
-    local = round(count * share_local)
+    by_keyframe = round(count * config.keyframe_share) if candidates is not None else 0
+    local = round((count - by_keyframe) * config.local_share)
     estimate = estimate.double().cpu()
-    near = global_particles(estimate, local, generator, plan.local_radius, up, max_yaw=plan.local_yaw)
-    anywhere = uniform_particles(bounds, count - local, generator, estimate[:3, :3], up)
-    return torch.cat([near, anywhere])
+    parts = [global_particles(estimate, local, generator, plan.local_radius, up, max_yaw=plan.local_yaw)]
+    parts.append(uniform_particles(bounds, count - by_keyframe - local, generator, estimate[:3, :3], up))
+    if by_keyframe > 0:
+        sigma = config.keyframe_position_sigma * candidates.spacing
+        parts.insert(0, keyframe_particles(candidates, by_keyframe, sigma, math.radians(config.keyframe_rotation_sigma_deg), generator))
+    return torch.cat(parts)

@@ -28,9 +28,14 @@ def render_image(
     Returns:
         (H, W, 3) image in [0, 1].
     """
-    pixels = pixel_grid(intrinsics, device=T_world_cam.device).to(T_world_cam.dtype)
-    origins, directions = rays_from_poses_and_pixels(T_world_cam[None], pixels, intrinsics)
-    origins, directions = origins[0], directions[0]
+    return render_views(render_rays, T_world_cam[None], intrinsics, chunk)[0]
+
+
+def render_views(render_rays: RenderRays, poses: torch.Tensor, intrinsics: PinholeIntrinsics, chunk: int = 65536) -> torch.Tensor:
+    """Every pixel seen from each of ``poses`` (N, 4, 4) -> (N, H, W, 3) images in [0, 1] (on the poses' device)."""
+    pixels = pixel_grid(intrinsics, device=poses.device).to(poses.dtype)
+    origins, directions = rays_from_poses_and_pixels(poses, pixels, intrinsics)
+    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
     with torch.no_grad():
         colours = [render_rays(origins[i : i + chunk], directions[i : i + chunk]) for i in range(0, len(origins), chunk)]
-    return torch.cat(colours).reshape(intrinsics.height, intrinsics.width, 3)
+    return torch.cat(colours).reshape(poses.shape[0], intrinsics.height, intrinsics.width, 3)

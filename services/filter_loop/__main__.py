@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.cli.map_source import open_map
+from locnerf.cli.map_source import open_map, recovery_keyframes
 from locnerf.config import PRESETS, load_config, preset
 from locnerf.devices import resolve_device
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
@@ -52,7 +52,9 @@ def build_loop(config: FilterProcessConfig) -> FilterLoop:
     bounds = radiance_map.camera_bounds()
     region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()), up=normalization.up)
     generator = torch.Generator().manual_seed(config.seed)
-    localizer = Localizer(localizer_config(config.localizer), generator, device=device, region=region)
+    localizer_settings = localizer_config(config.localizer)
+    keyframes = recovery_keyframes(localizer_settings, radiance_map, radiance_map.default_intrinsics, config.seed)
+    localizer = Localizer(localizer_settings, generator, device=device, region=region, keyframes=keyframes)
     return FilterLoop(config.robot_id, localizer, normalization, region, config.loop, time.monotonic)
 
 

@@ -36,6 +36,7 @@ class _Update:
     request_id: str
     snapshot: UpdateSnapshot
     started: float
+    image: torch.Tensor | None
     shards: list[_Shard] = field(default_factory=list)
 
     def complete(self) -> bool:
@@ -44,13 +45,16 @@ class _Update:
 
 @dataclass(frozen=True)
 class CompletedUpdate:
-    """Joined results: ``ids`` (N,) and ``log_likelihoods`` (N,) of snapshot ``(epoch, generation)``."""
+    """Joined results: ``ids`` (N,) and ``log_likelihoods`` (N,) of snapshot ``(epoch, generation)``,
+    with the update's ``image`` (H, W, 3) if one was kept and its camera."""
 
     epoch: int
     generation: int
     ids: torch.Tensor
     log_likelihoods: torch.Tensor
     latency: float
+    image: torch.Tensor | None
+    intrinsics: PinholeIntrinsics
 
 
 Outgoing = tuple[str, UpdateRequest]
@@ -115,8 +119,10 @@ class UpdateDispatcher:
         intrinsics: PinholeIntrinsics,
         exponent: float,
         now: float,
+        image: torch.Tensor | None = None,
     ) -> list[Outgoing]:
-        """Split ``snapshot`` over the live workers; pixels (M, 2), observed_rgb (M, 3).
+        """Split ``snapshot`` over the live workers; pixels (M, 2), observed_rgb (M, 3); ``image``
+        (H, W, 3) is kept until the update completes (for kidnapping recovery).
 
         Raises:
             RuntimeError: if :attr:`can_start` is false.
@@ -124,7 +130,7 @@ class UpdateDispatcher:
         if not self.can_start:
             raise RuntimeError(f"cannot start an update: {len(self.pending)} in flight (max {self.max_in_flight}), {len(self.workers)} worker(s)")
         names = sorted(self.workers)
-        update = _Update(uuid.uuid4().hex[:12], snapshot, now)
+        update = _Update(uuid.uuid4().hex[:12], snapshot, now, image)
         poses = snapshot.poses.detach().double().cpu().reshape(-1, 16)
         ids = snapshot.ids.cpu()
         common = {
@@ -166,6 +172,8 @@ class UpdateDispatcher:
             ids=torch.tensor([i for s in update.shards for i in s.request.ids], dtype=torch.int64),
             log_likelihoods=torch.tensor([x for s in update.shards for x in s.log_likelihoods], dtype=torch.float64),
             latency=now - update.started,
+            image=update.image,
+            intrinsics=update.shards[0].request.intrinsics,
         )
 
     def expire(self, now: float) -> int:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import collections
 import logging
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Literal
 
@@ -192,7 +193,7 @@ class FilterLoop:
             return []
         self.refresh_estimate()
         increment = None if increment is None else increment_to_map(increment, self.normalization)
-        self._estimate = carry_estimate(self._estimate, increment, self.localizer.noise_sigma())
+        self._estimate = carry_estimate(self._estimate, increment, self.localizer.noise_sigma(), self.localizer.noise_pivot())
         self._pending_increment, self._prediction_pending = increment, True
         return [self._pose_message(message.stamp)]
 
@@ -246,7 +247,10 @@ class FilterLoop:
             return []
         if completed is None or not self.running:
             return []
-        report = self.localizer.merge(completed.epoch, completed.generation, completed.ids, completed.log_likelihoods)
+        find_candidates = None
+        if completed.image is not None:
+            find_candidates = partial(self.localizer.keyframe_candidates, completed.image, completed.intrinsics)
+        report = self.localizer.merge(completed.epoch, completed.generation, completed.ids, completed.log_likelihoods, find_candidates)
         if report.outcome == "merged":
             self.rates["update"].tick()
             self.latencies.append(completed.latency)
@@ -331,7 +335,8 @@ class FilterLoop:
         image = torch.from_numpy(pixels).float() / 255.0
         chosen = sample_pixels_of_image(image, measurement, self.localizer.generator)
         colours = observed_colours(image, chosen)
-        return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now))
+        kept = image if self.localizer.keyframes is not None else None
+        return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept))
 
     def _particles_message(self) -> tuple[str, bytes]:
         particles = self.localizer.particles

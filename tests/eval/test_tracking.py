@@ -154,3 +154,15 @@ def test_cli_reports_json_and_writes_the_figure(tmp_path, capsys) -> None:
     assert report["stamps"] == 16 and len(report["series"]["translation_error"]) == 16
     assert report["series"]["update_stamps"] == pytest.approx([0.0, 1 / 3, 2 / 3, 1.0])
     assert (tmp_path / "tracking_error.png").stat().st_size > 0
+
+
+def test_cli_builds_the_keyframe_index_when_recovery_draws_around_keyframes(tmp_path, caplog) -> None:
+    config = tmp_path / "keyframes.toml"
+    config.write_text('preset = "tracking"\n[recovery]\nkeyframe_share = 0.8\n')
+    arguments = ["eval", "tracking", "--map", "world", "--sequence", "world", "--duration", "1.0", "--init", "gaussian", "--quiet"]
+    with caplog.at_level(logging.INFO, logger="locnerf.cli.map_source"):
+        assert main([*arguments, "--config", str(config)]) == 0
+        assert "keyframe index: 200 keyframes" in caplog.text
+        caplog.clear()
+        assert main([*arguments, "--config", str(config), "--no-recovery"]) == 0
+        assert "keyframe index" not in caplog.text

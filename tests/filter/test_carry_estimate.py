@@ -4,7 +4,7 @@ import torch
 
 from locnerf.filter.estimate import PoseEstimate, carry_estimate
 from locnerf.filter.initialization import gaussian_particles
-from locnerf.filter.motion import propagate_poses
+from locnerf.filter.motion import PivotNoise, propagate_poses
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.geometry.so3 import so3_exp
@@ -12,9 +12,9 @@ from locnerf.geometry.so3 import so3_exp
 PARTICLES = 400_000
 
 
-def _monte_carlo(mean: torch.Tensor, covariance: torch.Tensor, increment: torch.Tensor | None, sigma: torch.Tensor, seed: int):
+def _monte_carlo(mean: torch.Tensor, covariance: torch.Tensor, increment: torch.Tensor | None, sigma: torch.Tensor, seed: int, pivot: PivotNoise | None = None):
     generator = torch.Generator().manual_seed(seed)
-    poses = propagate_poses(gaussian_particles(mean, covariance, PARTICLES, generator), increment, sigma, generator)
+    poses = propagate_poses(gaussian_particles(mean, covariance, PARTICLES, generator), increment, sigma, generator, pivot)
     return weighted_pose_mean_and_covariance(poses, torch.full((PARTICLES,), 1.0 / PARTICLES, dtype=torch.float64), 1e-10)
 
 
@@ -61,4 +61,15 @@ def test_noise_only_step_keeps_the_pose_and_adds_the_noise() -> None:
     assert torch.equal(carried.pose, mean)
     assert torch.allclose(carried.covariance, covariance + torch.diag(sigma**2), atol=0, rtol=1e-15)
     _, sampled_covariance = _monte_carlo(mean, covariance, None, sigma, seed=1)
+    _assert_close_covariance(carried.covariance, sampled_covariance, 0.03)
+
+
+def test_carried_estimate_includes_the_pivot_noise() -> None:
+    """Same tolerance as above, with pivot noise (σ 0.02 / 0.01 rad at depth 3) on top of δ."""
+    mean = make_pose(so3_exp(torch.tensor([0.3, -1.1, 0.4], dtype=torch.float64)), torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64))
+    increment = make_pose(so3_exp(torch.tensor([0.1, 0.25, -0.2], dtype=torch.float64)), torch.tensor([0.4, -0.1, 0.3], dtype=torch.float64))
+    sigma = torch.tensor([0.01, 0.02, 0.005, 0.004, 0.006, 0.01], dtype=torch.float64)
+    pivot = PivotNoise(3.0, torch.tensor([0.02, 0.01], dtype=torch.float64))
+    carried = carry_estimate(_estimate(mean, _correlated_covariance()), increment, sigma, pivot)
+    _, sampled_covariance = _monte_carlo(mean, _correlated_covariance(), increment, sigma, seed=2, pivot=pivot)
     _assert_close_covariance(carried.covariance, sampled_covariance, 0.03)
