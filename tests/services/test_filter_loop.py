@@ -28,6 +28,7 @@ from locnerf.messages.schemas import (
 )
 from locnerf.sim.world import ProceduralWorld
 from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
+from services.filter_loop.__main__ import FilterProcessConfig, build_loop
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
 from services.nerf_worker.service import NerfWorker
@@ -365,3 +366,11 @@ def test_a_kidnapped_loop_recovers_around_the_keyframes_that_match_its_images(wo
 
     assert run(index) < 0.1
     assert run(None) > 0.5
+
+
+def test_the_filter_process_builds_the_keyframe_index_only_when_its_configuration_asks(tmp_path):
+    with_keyframes = tmp_path / "keyframes.toml"
+    with_keyframes.write_text('preset = "tracking"\n[recovery]\nkeyframe_share = 0.8\n')
+    loop = build_loop(FilterProcessConfig(map="world", localizer=str(with_keyframes), device="cpu"))
+    assert len(loop.localizer.keyframes) == 200 and loop.localizer.keyframes.matches(ProceduralWorld.default().default_intrinsics)
+    assert build_loop(FilterProcessConfig(map="world", localizer="tracking", device="cpu")).localizer.keyframes is None
