@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -113,3 +114,15 @@ def test_bad_config_files_are_refused(tmp_path, text, message):
 def test_unknown_preset_name():
     with pytest.raises(ValueError, match="unknown preset 'fern'"):
         preset("fern")
+
+
+def test_the_configuration_files_of_measured_results_load():
+    """Every file in configs/ is a valid localizer configuration; the lego orbit one has the
+    recovery and pivot noise that docs/RESULTS.md describes."""
+    folder = Path(__file__).resolve().parents[2] / "configs"
+    files = sorted(folder.glob("*.toml"))
+    assert files, f"no configuration files in {folder}"
+    configs = {path.stem: load_config(path) for path in files}
+    orbit = configs["lego_orbit_tracking"]
+    assert orbit.particles == 2400 and orbit.annealing.reduced_particles == 2400
+    assert orbit.recovery.enabled and orbit.recovery.keyframe_share == 0.8 and orbit.motion.pivot_noise() is not None
