@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 
@@ -14,6 +15,10 @@ from locnerf.cli.services_link import add_bus_arguments, open_cli_bus, transport
 from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import GlobalLocalizationCommand, InitialPoseCommand
+
+# Python's argparse (before 3.13) takes "-1.5e-05", as Python prints small negative numbers, for an
+# option name; a pose copied from a log must parse, so these parsers know every float spelling.
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,6 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     initial.add_argument("--sigma-position", type=float, default=0.1, help="standard deviation of the position per axis, metres")
     initial.add_argument("--sigma-rotation-deg", type=float, default=5.0, help="standard deviation of the rotation per axis, degrees")
     initial.add_argument("--covariance", type=float, nargs=36, metavar="C", help="full 6×6 covariance (rotation, translation), row-major")
+    initial._negative_number_matcher = NEGATIVE_NUMBER
     global_ = commands.add_parser("global-localization", help="re-initialise over the whole map")
     for command in (initial, global_):
         add_bus_arguments(command)
