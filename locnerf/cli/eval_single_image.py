@@ -15,8 +15,18 @@ from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
 from locnerf.eval.paper_logs import read_logged_trials
-from locnerf.eval.plots import plot_error_curves, plot_images_beside_renders, plot_success_against_passes
-from locnerf.eval.real_data import logged_views, run_views, seeded_views, success_by_budget, totals, trial_record
+from locnerf.eval.plots import plot_error_curves, plot_images_beside_renders, plot_mean_error_against_rays, plot_success_against_rays
+from locnerf.eval.real_data import (
+    logged_curve,
+    logged_views,
+    mean_error_by_budget,
+    result_curve,
+    run_views,
+    seeded_views,
+    success_by_budget,
+    totals,
+    trial_record,
+)
 from locnerf.eval.single_image import TrialConfig
 from locnerf.filter import Localizer
 from locnerf.render.camera import PinholeIntrinsics
@@ -70,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         logger.info("frame %d: %.4f units, %.2f deg, %.1f s", view.frame, results[-1].translation_error, results[-1].rotation_error_deg, results[-1].seconds)
     records = [trial_record(v, r) for v, r in zip(views, results)]
     report = {"protocol": args.protocol, "map": args.map, "data": str(args.data), "seed": args.seed, "updates": args.updates,
-              "particles": config.particles, "device": str(device), "totals": totals(records), "trials": records}
+              "particles": config.particles, "pixels": config.measurement.pixels, "device": str(device), "totals": totals(records), "trials": records}
     if args.plots is not None:
         report["plots"] = write_plots(args.plots, args.protocol, views, results)
         report["plots"].append(str(write_render_panels(args.plots / f"{args.protocol}_image_vs_render.png", radiance_map, pool.intrinsics, views, results)))
@@ -104,19 +114,27 @@ def write_render_panels(path: Path, radiance_map, intrinsics: PinholeIntrinsics,
 
 
 def write_plots(folder: Path, protocol: str, views, results) -> list[str]:
-    """Error curves of our trials and success ratio against forward passes, ours vs the original's."""
-    written = [str(plot_error_curves(results, folder / f"{protocol}_error_curves.png", f"{protocol} protocol: our error against forward passes"))]
-    ours = [(r.history_forward_passes, r.history_translation, r.history_rotation_deg) for r in results]
-    theirs = []
-    for view in views:
-        run = view.logged.locnerf if view.logged is not None else None
-        if run is not None and run.forward_passes is not None:
-            t_err, r_err = run.errors(view.truth)
-            theirs.append((run.forward_passes.tolist(), t_err.tolist(), r_err.tolist()))
-    highest = max([p[-1] for p, _, _ in ours + theirs])
+    """Our error curves (against rays rendered and wall time); success ratio and mean error against
+    rays rendered, ours beside the original's logged Loc-NeRF and iNeRF runs (paper Fig. 2).
+
+    Rays, not forward passes, are the common budget: the original took 128 samples per ray, our
+    grid maps a varying number (empty space is skipped)."""
+    written = [
+        str(plot_error_curves(results, folder / f"{protocol}_error_curves.png", f"{protocol} protocol: our error against rays rendered")),
+        str(plot_error_curves(results, folder / f"{protocol}_error_vs_time.png", f"{protocol} protocol: our error against wall time", against="seconds")),
+    ]
+    curves = {"locnerf (ours), all trials": [result_curve(r) for r in results]}
+    logged = [(view, result) for view, result in zip(views, results) if view.logged is not None]
+    if logged:
+        curves["locnerf (ours), logged starts"] = [result_curve(r) for _, r in logged]
+        for label, attribute in (("Loc-NeRF (original logs)", "locnerf"), ("iNeRF (original logs)", "inerf")):
+            runs = [(getattr(view.logged, attribute), view.truth) for view, _ in logged]
+            if all(run is not None and run.rays is not None for run, _ in runs):
+                curves[label] = [logged_curve(run, truth) for run, truth in runs]
+    highest = max(curve[0][-1] for group in curves.values() for curve in group)
     budgets = sorted({int(highest * f) for f in torch.logspace(-3, 0, 40).tolist()})
-    series = {"locnerf (ours)": (budgets, success_by_budget(ours, budgets))}
-    if theirs:
-        series["Loc-NeRF (original logs)"] = (budgets, success_by_budget(theirs, budgets))
-    written.append(str(plot_success_against_passes(series, folder / f"{protocol}_success_vs_passes.png", f"{protocol} protocol")))
+    success = {name: (budgets, success_by_budget(group, budgets)) for name, group in curves.items()}
+    written.append(str(plot_success_against_rays(success, folder / f"{protocol}_success_vs_rays.png", f"{protocol} protocol: success ratio")))
+    means = {name: (budgets, *mean_error_by_budget(group, budgets)) for name, group in curves.items()}
+    written.append(str(plot_mean_error_against_rays(means, folder / f"{protocol}_mean_error_vs_rays.png", f"{protocol} protocol: mean error")))
     return written

@@ -4,6 +4,20 @@ Files are ``<kind>_<scene>_<frame>_<suffix>.npy`` with kinds ``gt`` (4, 4), ``in
 (6,) = (a, b, c, tx, ty, tz), ``mocnerf`` (K, 4, 4) estimates with ``forward_passes`` (K,),
 ``mocnerf_started`` (same, without annealing) and ``inerf`` (301, 4, 4). The start pose of a trial
 is ``trans(t) · Rz(a) · Ry'(b) · Rx(c) · X_gt`` with ``Ry'(θ) = [[c, 0, -s], [0, 1, 0], [s, 0, c]]``.
+
+Two facts of the logs are handled here, not left to the scoring:
+
+- every ``inerf`` file's last slot (index 300) is all zeros: the original preallocated 301 slots
+  and filled 300 (the start and 299 iterations). A zero matrix is no pose (its "rotation error" is
+  0° to any truth), so trailing all-zero slots are dropped; a zero slot before a filled one is
+  refused as corruption.
+- the ``inerf`` runs log no forward passes; iNeRF spent ``INERF_RAYS_PER_ITERATION`` rays ×
+  ``ORIGINAL_SAMPLES_PER_RAY`` samples per iteration (``../shared/data/README.md``), so the
+  estimate in slot ``k`` cost ``k`` times that.
+
+Both methods of the original counted a forward pass as one ray × 128 samples (64 coarse + 64
+fine), so a logged run's rays are its forward passes ÷ 128: the budget that compares with ours,
+whose backends take other numbers of samples per ray.
 """
 
 from __future__ import annotations
@@ -20,6 +34,9 @@ from locnerf.geometry.validation import validate_poses
 
 _GT_NAME = re.compile(r"^gt_(?P<scene>.+)_(?P<frame>\d+)_poses\.npy$")
 
+INERF_RAYS_PER_ITERATION = 2048
+ORIGINAL_SAMPLES_PER_RAY = 128  # 64 coarse + 64 fine: the original's forward passes per ray
+
 
 @dataclass(frozen=True)
 class LoggedRun:
@@ -32,6 +49,11 @@ class LoggedRun:
         """Translation (K,) and rotation (K,) degree errors of every estimate against ``truth``."""
         expanded = truth.expand_as(self.poses)
         return translation_error(self.poses, expanded), rotation_error_deg(self.poses, expanded)
+
+    @property
+    def rays(self) -> torch.Tensor | None:
+        """(K,) cumulative rays rendered: forward passes ÷ ``ORIGINAL_SAMPLES_PER_RAY``."""
+        return None if self.forward_passes is None else self.forward_passes // ORIGINAL_SAMPLES_PER_RAY
 
 
 @dataclass(frozen=True)
@@ -71,13 +93,39 @@ def _load(path: Path, shape_tail: tuple[int, ...]) -> torch.Tensor:
     return torch.from_numpy(array.astype(np.float64))
 
 
-def _run(folder: Path, prefix: str) -> LoggedRun | None:
+def _filled_slots(poses: torch.Tensor, path: Path) -> int:
+    """Number of leading filled (not all-zero) slots of ``poses`` (K, 4, 4).
+
+    Raises:
+        ValueError: if an all-zero slot comes before a filled one, or no slot is filled.
+    """
+    empty = (poses == 0).flatten(1).all(dim=1)
+    filled = int((~empty).nonzero().max()) + 1 if (~empty).any() else 0
+    if filled == 0 or empty[:filled].any():
+        first = int(empty.nonzero()[0])
+        raise ValueError(f"{path}: slot {first} of {len(poses)} is an all-zero matrix before filled ones; expected estimates, then only unfilled slots")
+    return filled
+
+
+def _run(folder: Path, prefix: str, passes_per_slot: int | None = None) -> LoggedRun | None:
+    """The run ``<prefix>_poses.npy`` with its forward passes (from ``<prefix>_forward_passes.npy``,
+    else ``slot × passes_per_slot`` when given); trailing unfilled slots dropped."""
     poses_path = folder / f"{prefix}_poses.npy"
     if not poses_path.exists():
         return None
+    poses = _load(poses_path, (4, 4))
+    filled = _filled_slots(poses, poses_path)
     passes_path = folder / f"{prefix}_forward_passes.npy"
-    passes = torch.from_numpy(np.load(passes_path).astype(np.int64)) if passes_path.exists() else None
-    return LoggedRun(_load(poses_path, (4, 4)), passes)
+    if passes_path.exists():
+        passes = torch.from_numpy(np.load(passes_path).astype(np.int64))
+        if passes.shape != (len(poses),):
+            raise ValueError(f"{passes_path}: expected shape ({len(poses)},) to match {poses_path.name}, got {tuple(passes.shape)}")
+        passes = passes[:filled]
+    elif passes_per_slot is not None:
+        passes = torch.arange(filled, dtype=torch.int64) * passes_per_slot
+    else:
+        passes = None
+    return LoggedRun(poses[:filled], passes)
 
 
 def read_logged_trials(folder: str | Path, scene: str | None = None) -> list[LoggedTrial]:
@@ -104,7 +152,15 @@ def read_logged_trials(folder: str | Path, scene: str | None = None) -> list[Log
             raise FileNotFoundError(f"{perturbation_path}: the start of logged trial {stem} is missing")
         perturbation = _load(perturbation_path, (6,))
         trials.append(
-            LoggedTrial(name, frame, truth, perturbation, _run(folder, f"mocnerf_{stem}"), _run(folder, f"mocnerf_started_{stem}"), _run(folder, f"inerf_{stem}"))
+            LoggedTrial(
+                name,
+                frame,
+                truth,
+                perturbation,
+                _run(folder, f"mocnerf_{stem}"),
+                _run(folder, f"mocnerf_started_{stem}"),
+                _run(folder, f"inerf_{stem}", passes_per_slot=INERF_RAYS_PER_ITERATION * ORIGINAL_SAMPLES_PER_RAY),
+            )
         )
     if not trials:
         raise FileNotFoundError(f"{folder}: no logged trials (gt_<scene>_<frame>_poses.npy) found" + (f" for scene {scene!r}" if scene else ""))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import matplotlib
 
@@ -22,36 +23,63 @@ def save_figure(figure: plt.Figure, path: Path, title: str) -> Path:
     return path
 
 
-def plot_error_curves(results: list[TrialResult], path: Path, title: str) -> Path:
-    """Translation and rotation error of every trial against forward passes (paper Fig. 3 style)."""
+RAYS_LABEL = "rays rendered (thousands; the paper's forward passes ÷ 128)"
+
+
+def plot_error_curves(results: list[TrialResult], path: Path, title: str, against: Literal["rays", "seconds"] = "rays") -> Path:
+    """Translation and rotation error of every trial against rays rendered or wall time (paper Fig. 3 style)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     figure, (ax_t, ax_r) = plt.subplots(1, 2, figsize=(10, 4))
     for result in results:
-        passes = [p / 1e6 for p in result.history_forward_passes]
-        ax_t.plot(passes, result.history_translation, alpha=0.7)
-        ax_r.plot(passes, result.history_rotation_deg, alpha=0.7)
+        abscissa = [r / 1e3 for r in result.history_rays] if against == "rays" else result.history_seconds
+        ax_t.plot(abscissa, result.history_translation, alpha=0.7)
+        ax_r.plot(abscissa, result.history_rotation_deg, alpha=0.7)
     for axis, threshold, label in ((ax_t, SUCCESS_TRANSLATION, "translation error (map units)"), (ax_r, SUCCESS_ROTATION_DEG, "rotation error (deg)")):
         axis.axhline(threshold, color="k", linestyle="--", linewidth=1, label="success threshold")
         axis.set_yscale("log")
-        axis.set_xlabel("forward passes (millions)")
+        axis.set_xlabel(RAYS_LABEL if against == "rays" else "wall time (s)")
         axis.set_ylabel(label)
         axis.grid(True, alpha=0.3)
         axis.legend()
     return save_figure(figure, path, title)
 
 
-def plot_success_against_passes(series: dict[str, tuple[list[int], list[float]]], path: Path, title: str) -> Path:
-    """Success ratio against forward passes for several methods (paper Fig. 2 style).
+def plot_mean_error_against_rays(series: dict[str, tuple[list[int], list[float], list[float]]], path: Path, title: str) -> Path:
+    """Mean translation and rotation error against rays rendered for several methods (paper Fig. 2 style).
 
     Args:
-        series: method name -> (forward-pass budgets, success ratio at each budget).
+        series: method name -> (ray budgets, mean translation error, mean rotation error in
+            degrees at each budget).
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure, (ax_t, ax_r) = plt.subplots(1, 2, figsize=(10, 4))
+    for name, (budgets, translation, rotation) in series.items():
+        thousands = [b / 1e3 for b in budgets]
+        ax_t.plot(thousands, translation, marker="o", markersize=3, label=name)
+        ax_r.plot(thousands, rotation, marker="o", markersize=3, label=name)
+    for axis, threshold, label in ((ax_t, SUCCESS_TRANSLATION, "mean translation error (map units)"), (ax_r, SUCCESS_ROTATION_DEG, "mean rotation error (deg)")):
+        axis.axhline(threshold, color="k", linestyle="--", linewidth=1, label="success threshold")
+        axis.set_xscale("log")
+        axis.set_yscale("log")
+        axis.set_xlabel(RAYS_LABEL)
+        axis.set_ylabel(label)
+        axis.grid(True, alpha=0.3)
+        axis.legend(fontsize=8)
+    return save_figure(figure, path, title)
+
+
+def plot_success_against_rays(series: dict[str, tuple[list[int], list[float]]], path: Path, title: str) -> Path:
+    """Success ratio against rays rendered for several methods (paper Fig. 2 style).
+
+    Args:
+        series: method name -> (ray budgets, success ratio at each budget).
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     figure, axis = plt.subplots(figsize=(6, 4))
     for name, (budgets, rates) in series.items():
-        axis.plot([b / 1e6 for b in budgets], rates, marker="o", markersize=3, label=name)
+        axis.plot([b / 1e3 for b in budgets], rates, marker="o", markersize=3, label=name)
     axis.set_xscale("log")
-    axis.set_xlabel("forward passes (millions, log scale)")
+    axis.set_xlabel(RAYS_LABEL)
     axis.set_ylabel(f"success ratio (< {SUCCESS_TRANSLATION} units and < {SUCCESS_ROTATION_DEG:g}°)")
     axis.set_ylim(-0.02, 1.02)
     axis.grid(True, alpha=0.3)

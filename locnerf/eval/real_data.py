@@ -7,6 +7,7 @@ from a seed (any frame, including held-out ones that the map never saw).
 
 from __future__ import annotations
 
+import bisect
 import statistics
 from dataclasses import dataclass
 
@@ -70,7 +71,29 @@ def run_views(views: list[View], radiance_map: RadianceMap, intrinsics: PinholeI
     ]
 
 
-def _final(run: LoggedRun | None, truth: torch.Tensor) -> dict[str, float | int | bool] | None:
+Curve = tuple[list[int], list[float], list[float]]
+"""One run's (cumulative rays rendered, translation errors, rotation errors in degrees), aligned."""
+
+
+def result_curve(result: TrialResult) -> Curve:
+    """Our trial's error curve against rays rendered."""
+    return result.history_rays, result.history_translation, result.history_rotation_deg
+
+
+def logged_curve(run: LoggedRun, truth: torch.Tensor) -> Curve:
+    """A logged run's error curve against rays rendered.
+
+    Raises:
+        ValueError: if the run logged no forward passes.
+    """
+    if run.rays is None:
+        raise ValueError("logged run without forward passes: expected a *_forward_passes.npy file or a known cost per slot")
+    t_err, r_err = run.errors(truth)
+    return run.rays.tolist(), t_err.tolist(), r_err.tolist()
+
+
+def _original(run: LoggedRun | None, truth: torch.Tensor) -> dict | None:
+    """The final figures of a logged run and its error history, JSON-ready."""
     if run is None:
         return None
     t_err, r_err = run.errors(truth)
@@ -80,6 +103,12 @@ def _final(run: LoggedRun | None, truth: torch.Tensor) -> dict[str, float | int 
         "rotation_error_deg": float(r_err[-1]),
         "success": bool(t_err[-1] < SUCCESS_TRANSLATION and r_err[-1] < SUCCESS_ROTATION_DEG),
         "forward_passes": passes,
+        "history": {
+            "forward_passes": run.forward_passes.tolist() if run.forward_passes is not None else None,
+            "rays": run.rays.tolist() if run.rays is not None else None,
+            "translation_error": t_err.tolist(),
+            "rotation_error_deg": r_err.tolist(),
+        },
     }
 
 
@@ -95,10 +124,18 @@ def trial_record(view: View, result: TrialResult) -> dict:
         "success": result.success,
         "seconds": result.seconds,
         "forward_passes": result.forward_passes,
+        "rays": result.rays,
+        "history": {
+            "forward_passes": result.history_forward_passes,
+            "rays": result.history_rays,
+            "seconds": result.history_seconds,
+            "translation_error": result.history_translation,
+            "rotation_error_deg": result.history_rotation_deg,
+        },
     }
     if view.logged is not None:
-        record["original_locnerf"] = _final(view.logged.locnerf, view.truth)
-        record["original_inerf"] = _final(view.logged.inerf, view.truth)
+        record["original_locnerf"] = _original(view.logged.locnerf, view.truth)
+        record["original_inerf"] = _original(view.logged.inerf, view.truth)
     return record
 
 
@@ -136,19 +173,43 @@ def totals(records: list[dict]) -> dict:
     return result
 
 
-def success_by_budget(curves: list[tuple[list[int], list[float], list[float]]], budgets: list[int]) -> list[float]:
-    """Fraction of runs whose latest estimate within each forward-pass budget is a success.
+def _latest_within(costs: list[int], budget: int) -> int | None:
+    """Index of the last estimate whose cumulative cost fits ``budget``; None if none does."""
+    index = bisect.bisect_right(costs, budget) - 1
+    return index if index >= 0 else None
+
+
+def success_by_budget(curves: list[Curve], budgets: list[int]) -> list[float]:
+    """Fraction of runs whose latest estimate within each budget (rays rendered) is a success.
 
     Args:
-        curves: per run (cumulative forward passes, translation errors, rotation errors), aligned.
-        budgets: forward-pass budgets, ascending.
+        curves: per run (cumulative cost ascending, translation errors, rotation errors).
+        budgets: cost budgets in the curves' unit, ascending.
     """
     rates = []
     for budget in budgets:
         hits = 0
-        for passes, t_err, r_err in curves:
-            within = [i for i, p in enumerate(passes) if p <= budget]
-            if within and t_err[within[-1]] < SUCCESS_TRANSLATION and r_err[within[-1]] < SUCCESS_ROTATION_DEG:
+        for costs, t_err, r_err in curves:
+            index = _latest_within(costs, budget)
+            if index is not None and t_err[index] < SUCCESS_TRANSLATION and r_err[index] < SUCCESS_ROTATION_DEG:
                 hits += 1
         rates.append(hits / len(curves) if curves else 0.0)
     return rates
+
+
+def mean_error_by_budget(curves: list[Curve], budgets: list[int]) -> tuple[list[float], list[float]]:
+    """Mean translation and rotation error of the runs' latest estimates within each budget.
+
+    Every run must have an estimate within the smallest budget (its start, at 0 cost, counts).
+
+    Raises:
+        ValueError: if a run has no estimate within some budget.
+    """
+    translation, rotation = [], []
+    for budget in budgets:
+        latest = [(t_err, r_err, _latest_within(costs, budget)) for costs, t_err, r_err in curves]
+        if any(index is None for _, _, index in latest):
+            raise ValueError(f"budget {budget}: a run has no estimate within it; expected every curve to start at or below the smallest budget")
+        translation.append(statistics.fmean(t_err[index] for t_err, _, index in latest))
+        rotation.append(statistics.fmean(r_err[index] for _, r_err, index in latest))
+    return translation, rotation

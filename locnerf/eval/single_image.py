@@ -54,15 +54,22 @@ class TrialConfig(BaseModel):
 
 @dataclass
 class TrialResult:
-    """Outcome of one trial; histories have one entry per update."""
+    """Outcome of one trial; histories have one entry for the start (0 forward passes, 0 s) and
+    one per update, as the original's logs do."""
 
     translation_error: float
     rotation_error_deg: float
     seconds: float
     forward_passes: int
+    rays: int = 0
+    """Rays rendered in all (particles × pixels, summed over updates); ``forward_passes`` is that
+    times the map's nominal samples per ray (an upper bound for grid maps, which skip empty space)."""
     history_translation: list[float] = field(default_factory=list)
     history_rotation_deg: list[float] = field(default_factory=list)
     history_forward_passes: list[int] = field(default_factory=list)
+    history_rays: list[int] = field(default_factory=list)
+    history_seconds: list[float] = field(default_factory=list)
+    """Wall time since the trial's first update began, at each estimate."""
     final_pose: torch.Tensor | None = None
     """(4, 4) float64 estimate after the last update."""
 
@@ -106,21 +113,31 @@ def run_trial(
     ``offset`` (3,) fixes the start's translation offset (logged starts); drawn when None.
     """
     initialize_for_protocol(localizer, truth, config, localizer.generator, offset)
+    truth = truth.double().cpu()
     result = TrialResult(math.inf, math.inf, 0.0, 0)
+
+    def record(estimate: torch.Tensor, rays: int, seconds: float) -> None:
+        result.history_translation.append(float(translation_error(estimate, truth)))
+        result.history_rotation_deg.append(float(rotation_error_deg(estimate, truth)))
+        result.history_rays.append(rays)
+        result.history_forward_passes.append(rays * samples_per_ray)
+        result.history_seconds.append(seconds)
+
+    estimate = localizer.estimate().pose
+    record(estimate, 0, 0.0)
     started = time.perf_counter()
-    forward_passes = 0
+    rays = 0
     for _ in range(config.updates):
         localizer.predict()
-        forward_passes += localizer.particles.count * localizer.config.measurement.pixels * samples_per_ray
+        rays += localizer.particles.count * localizer.config.measurement.pixels
         localizer.update(image, intrinsics, render_rays)
         estimate = localizer.estimate().pose
-        result.history_translation.append(float(translation_error(estimate, truth.double().cpu())))
-        result.history_rotation_deg.append(float(rotation_error_deg(estimate, truth.double().cpu())))
-        result.history_forward_passes.append(forward_passes)
+        record(estimate, rays, time.perf_counter() - started)
     result.seconds = time.perf_counter() - started
     result.translation_error = result.history_translation[-1]
     result.rotation_error_deg = result.history_rotation_deg[-1]
-    result.forward_passes = forward_passes
+    result.rays = rays
+    result.forward_passes = rays * samples_per_ray
     result.final_pose = estimate
     return result
 

@@ -40,6 +40,19 @@ def test_reduced_experiment_reports_ours_beside_the_logs_and_writes_figures(
     assert totals["logged_starts"]["trials"] == 5
     # The original's own runs on the same starts are scored beside ours.
     assert totals["original_locnerf_on_logged_starts"]["trials"] == 5
+    # Per trial: the error history against rays, forward passes and wall time, from the start on.
+    first = report["trials"][0]
+    history = first["history"]
+    assert len(history["rays"]) == len(history["forward_passes"]) == len(history["seconds"]) == len(history["translation_error"]) == 3
+    assert history["rays"][0] == history["forward_passes"][0] == 0 and history["seconds"][0] == 0.0
+    assert history["rays"][1] == report["particles"] * report["pixels"]  # the first update renders every particle
+    assert history["forward_passes"][-1] == first["forward_passes"] and history["translation_error"][-1] == first["translation_error"]
+    assert history["seconds"] == sorted(history["seconds"])
+    original = first["original_locnerf"]["history"]
+    assert len(original["rays"]) == len(original["translation_error"]) > 10
+    assert original["rays"][1] * 128 == original["forward_passes"][1]
+    protocol = report["protocol"]
     written = [Path(p) for p in report["plots"]]
-    assert {p.name for p in written} >= {f"{report['protocol']}_error_curves.png", f"{report['protocol']}_image_vs_render.png"}
+    expected = {f"{protocol}_{name}.png" for name in ("error_curves", "error_vs_time", "success_vs_rays", "mean_error_vs_rays", "image_vs_render")}
+    assert {p.name for p in written} == expected
     assert all(p.is_file() and p.stat().st_size > 1000 for p in written)

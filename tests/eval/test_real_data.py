@@ -6,7 +6,7 @@ import pytest
 
 from locnerf.data import read_llff
 from locnerf.eval.paper_logs import read_logged_trials
-from locnerf.eval.real_data import logged_views, seeded_views, success_by_budget, totals
+from locnerf.eval.real_data import logged_views, mean_error_by_budget, seeded_views, success_by_budget, totals
 
 
 def test_logged_views_match_the_reader_and_carry_offsets(shared_data, generator):
@@ -30,6 +30,16 @@ def test_logged_views_refuse_a_mismatched_data_set(shared_data):
 def test_success_by_budget_hand_values():
     curves = [([10, 20, 30], [0.5, 0.04, 0.01], [10.0, 4.0, 1.0]), ([10, 20, 30], [0.5, 0.5, 0.01], [1.0, 1.0, 1.0])]
     assert success_by_budget(curves, [5, 10, 20, 30]) == [0.0, 0.0, 0.5, 1.0]
+
+
+def test_mean_error_by_budget_hand_values():
+    """Each run contributes its latest estimate within the budget; 25 passes sees the 20-pass ones."""
+    curves = [([0, 20, 30], [0.5, 0.04, 0.01], [10.0, 4.0, 1.0]), ([0, 10, 40], [0.3, 0.1, 0.02], [2.0, 1.0, 0.5])]
+    translation, rotation = mean_error_by_budget(curves, [0, 25, 40])
+    assert translation == pytest.approx([0.4, 0.07, 0.015])
+    assert rotation == pytest.approx([6.0, 2.5, 0.75])
+    with pytest.raises(ValueError, match="budget 5: a run has no estimate within it"):
+        mean_error_by_budget([([10], [0.1], [1.0])], [5])
 
 
 def test_totals_split_held_out_and_logged():
