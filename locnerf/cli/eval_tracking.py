@@ -50,6 +50,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--init", choices=("global", "gaussian"), default="global", help="start: the paper's global cube, or a Gaussian around the truth")
     parser.add_argument("--kidnap-at", type=float, default=None, help="seconds: the camera jumps half a loop ahead, unseen by the odometry")
     parser.add_argument("--no-recovery", action="store_true", help="turn kidnapping recovery off in the chosen configuration")
+    parser.add_argument("--converged-translation", type=float, default=0.05, help="convergence: translation error threshold, map units")
+    parser.add_argument("--converged-rotation", type=float, default=5.0, help="convergence: rotation error threshold, degrees")
+    parser.add_argument("--converged-hold", type=float, default=2.0, help="convergence: seconds both errors must stay under the thresholds")
     parser.add_argument("--preset", default="tracking", help="filter preset (tracking, llff, llff_global, jackal)")
     parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
@@ -81,9 +84,20 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
     return SequencePath(frames, args.speed, args.odom_rate)
 
 
+def convergence_criterion(args: argparse.Namespace) -> ConvergenceConfig:
+    """--converged-translation/-rotation/-hold, checked before any work starts."""
+    if args.converged_translation <= 0 or args.converged_rotation <= 0 or args.converged_hold < 0:
+        raise ValueError(
+            f"--converged-translation {args.converged_translation}, --converged-rotation {args.converged_rotation}, "
+            f"--converged-hold {args.converged_hold}: expected positive thresholds and a hold of 0 s or more"
+        )
+    return ConvergenceConfig(translation=args.converged_translation, rotation_deg=args.converged_rotation, hold=args.converged_hold)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.odom_rate <= 0 or args.image_rate <= 0:
         raise ValueError(f"--odom-rate {args.odom_rate}, --image-rate {args.image_rate}: expected positive rates")
+    criterion = convergence_criterion(args)
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
     path = camera_path(args, radiance_map)
@@ -105,7 +119,6 @@ def run(args: argparse.Namespace) -> int:
     localizer = Localizer(config, torch.Generator().manual_seed(args.seed), device, region=region, keyframes=keyframes)
     image_generator = torch.Generator().manual_seed(args.seed + 1)
     record = run_tracking(scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet, updates_per_image=args.updates_per_image)
-    criterion = ConvergenceConfig()
     summary = summarize_tracking(record, criterion)
     if args.plots is not None:
         name = "world" if args.sequence == WORLD else Path(args.sequence).name

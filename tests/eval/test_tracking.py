@@ -140,17 +140,23 @@ def test_cli_refuses_a_missing_sequence_folder(tmp_path, caplog) -> None:
 
 @pytest.mark.parametrize(
     ("rates", "message"),
-    [(["--odom-rate", "0"], "expected positive rates"), (["--image-rate", "30"], "image rate 30.0 Hz above the odometry rate 15.0 Hz")],
+    [
+        (["--odom-rate", "0"], "expected positive rates"),
+        (["--image-rate", "30"], "image rate 30.0 Hz above the odometry rate 15.0 Hz"),
+        (["--converged-translation", "-0.1"], "--converged-translation -0.1"),
+        (["--converged-hold", "-1"], "expected positive thresholds and a hold of 0 s or more"),
+    ],
 )
-def test_cli_refuses_bad_rates(rates: list[str], message: str, caplog) -> None:
+def test_cli_refuses_bad_rates_and_thresholds(rates: list[str], message: str, caplog) -> None:
     assert main(["eval", "tracking", "--map", "world", "--sequence", "world", "--quiet", *rates]) == 2
     assert message in caplog.text
 
 
 def test_cli_reports_json_and_writes_the_figure(tmp_path, capsys) -> None:
     arguments = ["eval", "tracking", "--map", "world", "--sequence", "world", "--duration", "1.0", "--init", "gaussian", "--quiet", "--json"]
-    assert main([*arguments, "--plots", str(tmp_path)]) == 0
+    assert main([*arguments, "--plots", str(tmp_path), "--converged-translation", "0.2", "--converged-hold", "0.5"]) == 0
     report = json.loads(capsys.readouterr().out)
+    assert report["convergence"] == {"translation": 0.2, "rotation_deg": 5.0, "hold": 0.5}
     assert report["stamps"] == 16 and len(report["series"]["translation_error"]) == 16
     assert report["series"]["update_stamps"] == pytest.approx([0.0, 1 / 3, 2 / 3, 1.0])
     assert (tmp_path / "tracking_error.png").stat().st_size > 0
