@@ -1,0 +1,82 @@
+"""ROS 2 message types: the rosbags type store, DDS type names, RIHS01 hashes and CDR.
+
+The type store is rosbags' Kilted store (the message definitions used here are identical in
+Jazzy; a test pins that their hashes agree). ``std_srvs/srv/Empty`` is not in rosbags' stores and
+is registered here as rosidl describes a service: a struct of ``request_message``,
+``response_message`` and ``event_message`` (REP-2016), so rosbags can hash it.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.base import Nodetype
+from rosbags.typesys.store import Typestore
+
+from locnerf.messages.codec import DecodeError
+
+EMPTY_SERVICE = "std_srvs/srv/Empty"
+
+
+def _service_definitions(service: str) -> dict:
+    """rosbags field definitions of a service without request or response fields (std_srvs/Empty)."""
+    request, response, event = f"{service}_Request", f"{service}_Response", f"{service}_Event"
+    nested = lambda name: (Nodetype.NAME, name)  # noqa: E731
+    bounded_one = lambda name: (Nodetype.SEQUENCE, ((Nodetype.NAME, name), 1))  # noqa: E731
+    return {
+        request: ([], []),
+        response: ([], []),
+        event: ([], [("info", nested("service_msgs/msg/ServiceEventInfo")), ("request", bounded_one(request)), ("response", bounded_one(response))]),
+        service: ([], [("request_message", nested(request)), ("response_message", nested(response)), ("event_message", nested(event))]),
+    }
+
+
+@cache
+def typestore() -> Typestore:
+    """The shared type store (Kilted definitions plus std_srvs/srv/Empty)."""
+    store = get_typestore(Stores.ROS2_KILTED)
+    store.register(_service_definitions(EMPTY_SERVICE))
+    return store
+
+
+def dds_type_name(ros_type: str) -> str:
+    """``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_``, the type name rmw_zenoh puts in keys and tokens.
+
+    Raises:
+        ValueError: a name not of the form package/(msg|srv)/Name.
+    """
+    parts = ros_type.split("/")
+    if len(parts) != 3 or parts[1] not in ("msg", "srv") or not all(parts):
+        raise ValueError(f"ROS type {ros_type!r}: expected <package>/msg/<Name> or <package>/srv/<Name>")
+    return f"{parts[0]}::{parts[1]}::dds_::{parts[2]}_"
+
+
+@cache
+def type_hash(ros_type: str) -> str:
+    """The REP-2016 type hash ``RIHS01_<64 hex>`` of a message or service type (rosbags computes it)."""
+    if ros_type not in typestore().fielddefs:
+        raise ValueError(f"ROS type {ros_type!r} is not in the type store")
+    return typestore().hash_rihs01(ros_type)
+
+
+def message_class(ros_type: str) -> type:
+    """The rosbags dataclass of ``ros_type`` (e.g. ``typestore().types['nav_msgs/msg/Odometry']``)."""
+    return typestore().types[ros_type]
+
+
+def serialize(message: object, ros_type: str) -> bytes:
+    """A rosbags message -> CDR little-endian bytes with the 4-byte encapsulation header."""
+    return bytes(typestore().serialize_cdr(message, ros_type))
+
+
+def deserialize(payload: bytes, ros_type: str) -> object:
+    """CDR bytes -> a rosbags message of ``ros_type``.
+
+    Raises:
+        DecodeError: ``ros2_cdr`` for a payload that is not a CDR ``ros_type``.
+    """
+    try:
+        return typestore().deserialize_cdr(payload, ros_type)
+    except Exception as error:  # rosbags raises struct/index/value errors on truncated or foreign bytes
+        raise DecodeError("ros2_cdr", f"{len(payload)} bytes are not a CDR {ros_type} ({type(error).__name__}: {error})") from None
