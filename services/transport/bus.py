@@ -14,7 +14,10 @@ from typing import Callable, Generic, Protocol, TypeVar
 
 Item = TypeVar("Item")
 SampleCallback = Callable[[str, bytes], None]
+AttachedCallback = Callable[[str, bytes, bytes | None], None]
 LivelinessCallback = Callable[[str, bool], None]
+Reply = tuple[str, bytes, bytes | None]
+QueryHandler = Callable[[str, bytes, bytes | None], list[Reply]]
 
 
 class Closeable(Protocol):
@@ -26,11 +29,25 @@ class Closeable(Protocol):
 class Bus(Protocol):
     """What a service needs of the middleware."""
 
-    def publish(self, key: str, payload: bytes) -> None:
-        """Send ``payload`` on ``key`` (never blocks on slow subscribers)."""
+    @property
+    def session_id(self) -> str:
+        """The session's id, lowercase hex (rmw_zenoh puts it in its liveliness tokens)."""
+
+    def publish(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
+        """Send ``payload`` (and an optional ``attachment``) on ``key`` (never blocks on slow subscribers)."""
 
     def subscribe(self, key_expr: str, callback: SampleCallback) -> Closeable:
         """Call ``callback(key, payload)`` for every sample matching ``key_expr``."""
+
+    def subscribe_attached(self, key_expr: str, callback: AttachedCallback) -> Closeable:
+        """Call ``callback(key, payload, attachment or None)`` for every sample matching ``key_expr``."""
+
+    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Closeable:
+        """Answer queries matching ``key_expr``: ``handler(key, payload, attachment)`` returns the
+        replies ``(key, payload, attachment)``; it runs on a transport thread, so it must be quick."""
+
+    def query(self, key: str, payload: bytes, attachment: bytes | None = None, timeout: float = 5.0) -> list[Reply]:
+        """Send a query and collect the successful replies until ``timeout`` seconds or the last one."""
 
     def declare_token(self, key: str) -> Closeable:
         """Announce liveliness on ``key`` until closed or until the process dies."""

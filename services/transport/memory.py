@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 
-from services.transport.bus import LivelinessCallback, SampleCallback
+from services.transport.bus import AttachedCallback, LivelinessCallback, QueryHandler, Reply, SampleCallback
 
 
 def key_matches(key_expr: str, key: str) -> bool:
@@ -40,21 +40,38 @@ class MemoryBus:
     """All services of a test share one instance; callbacks run inside ``publish``."""
 
     _subscribers: list = field(default_factory=list)
+    _queryables: list = field(default_factory=list)
     _tokens: list = field(default_factory=list)
     _watchers: list = field(default_factory=list)
     _lock: threading.RLock = field(default_factory=threading.RLock)
 
-    def publish(self, key: str, payload: bytes) -> None:
+    session_id: str = "0123456789abcdef0123456789abcdef"
+
+    def publish(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
         with self._lock:
             targets = [callback for pattern, callback in self._subscribers if key_matches(pattern, key)]
         for callback in targets:
-            callback(key, bytes(payload))
+            callback(key, bytes(payload), attachment)
 
     def subscribe(self, key_expr: str, callback: SampleCallback) -> _Registration:
+        return self.subscribe_attached(key_expr, lambda key, payload, _attachment: callback(key, payload))
+
+    def subscribe_attached(self, key_expr: str, callback: AttachedCallback) -> _Registration:
         entry = (key_expr, callback)
         with self._lock:
             self._subscribers.append(entry)
         return _Registration(self, self._subscribers, entry)
+
+    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> _Registration:
+        entry = (key_expr, handler)
+        with self._lock:
+            self._queryables.append(entry)
+        return _Registration(self, self._queryables, entry)
+
+    def query(self, key: str, payload: bytes, attachment: bytes | None = None, timeout: float = 5.0) -> list[Reply]:
+        with self._lock:
+            handlers = [handler for pattern, handler in self._queryables if key_matches(pattern, key)]
+        return [reply for handler in handlers for reply in handler(key, bytes(payload), attachment)]
 
     def declare_token(self, key: str) -> _Registration:
         entry = (key, object())
@@ -80,5 +97,6 @@ class MemoryBus:
     def close(self) -> None:
         with self._lock:
             self._subscribers.clear()
+            self._queryables.clear()
             self._watchers.clear()
             self._tokens.clear()

@@ -7,7 +7,7 @@ import logging
 
 import zenoh
 
-from services.transport.bus import LivelinessCallback, SampleCallback
+from services.transport.bus import AttachedCallback, LivelinessCallback, QueryHandler, Reply, SampleCallback
 from services.transport.config import TransportConfig
 
 logger = logging.getLogger(__name__)
@@ -41,6 +41,24 @@ def _safe(callback: SampleCallback, sample: zenoh.Sample) -> None:
         logger.exception("subscriber callback failed on %s", sample.key_expr)
 
 
+def _safe_attached(callback: AttachedCallback, sample: zenoh.Sample) -> None:
+    try:
+        attachment = sample.attachment
+        callback(str(sample.key_expr), sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes())
+    except Exception:
+        logger.exception("subscriber callback failed on %s", sample.key_expr)
+
+
+def _answer(handler: QueryHandler, query: zenoh.Query) -> None:
+    try:
+        payload, attachment = query.payload, query.attachment
+        replies = handler(str(query.key_expr), b"" if payload is None else payload.to_bytes(), None if attachment is None else attachment.to_bytes())
+        for key, reply, reply_attachment in replies:
+            query.reply(key, reply, attachment=reply_attachment)
+    except Exception:  # a faulty handler must not take the Zenoh thread down
+        logger.exception("queryable handler failed on %s", query.key_expr)
+
+
 class ZenohBus:
     """A Zenoh session behind the Bus protocol.
 
@@ -53,14 +71,32 @@ class ZenohBus:
         self._session = zenoh.open(zenoh_config(config))
         self._publishers: dict[str, zenoh.Publisher] = {}
 
-    def publish(self, key: str, payload: bytes) -> None:
+    @property
+    def session_id(self) -> str:
+        return str(self._session.info.zid())
+
+    def publish(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
         publisher = self._publishers.get(key)
         if publisher is None:
             publisher = self._publishers[key] = self._session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
-        publisher.put(payload)
+        publisher.put(payload, attachment=attachment)
 
     def subscribe(self, key_expr: str, callback: SampleCallback) -> _Undeclare:
         return _Undeclare(self._session.declare_subscriber(key_expr, lambda sample: _safe(callback, sample)))
+
+    def subscribe_attached(self, key_expr: str, callback: AttachedCallback) -> _Undeclare:
+        return _Undeclare(self._session.declare_subscriber(key_expr, lambda sample: _safe_attached(callback, sample)))
+
+    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> _Undeclare:
+        return _Undeclare(self._session.declare_queryable(key_expr, lambda query: _answer(handler, query)))
+
+    def query(self, key: str, payload: bytes, attachment: bytes | None = None, timeout: float = 5.0) -> list[Reply]:
+        replies: list[Reply] = []
+        for reply in self._session.get(key, payload=payload, attachment=attachment, timeout=timeout):
+            if reply.ok is not None:
+                sample = reply.ok
+                replies.append((str(sample.key_expr), sample.payload.to_bytes(), None if sample.attachment is None else sample.attachment.to_bytes()))
+        return replies
 
     def declare_token(self, key: str) -> _Undeclare:
         return _Undeclare(self._session.liveliness().declare_token(key))

@@ -90,3 +90,37 @@ def test_zenoh_bus_on_loopback_publishes_and_reports_liveliness():
     finally:
         for bus in (a, b, hub):
             bus.close()
+
+
+def test_memory_bus_carries_attachments_and_answers_queries():
+    bus = MemoryBus()
+    got = []
+    bus.subscribe_attached("x/*", lambda key, payload, attachment: got.append((key, payload, attachment)))
+    bus.publish("x/a", b"1", attachment=b"meta")
+    bus.publish("x/b", b"2")
+    bus.declare_queryable("srv/*/*", lambda key, payload, attachment: [(key, payload + b"!", attachment)])
+    assert got == [("x/a", b"1", b"meta"), ("x/b", b"2", None)]
+    assert bus.query("srv/t/h", b"q", attachment=b"a") == [("srv/t/h", b"q!", b"a")]
+    assert bus.query("other", b"q") == []
+    assert len(bus.session_id) == 32
+
+
+def test_zenoh_bus_on_loopback_carries_attachments_and_answers_queries():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = open_bus(TransportConfig(listen=(endpoint,)))
+    a = open_bus(TransportConfig(connect=(endpoint,)))
+    try:
+        got: Inbox[tuple[bytes, bytes | None]] = Inbox()
+        hub.subscribe_attached("t/**", lambda _key, payload, attachment: got.put((payload, attachment)))
+        a.declare_queryable("srv/*/*", lambda key, payload, attachment: [(key, payload + b"!", attachment)])
+        received = None
+        deadline = time.monotonic() + 20.0
+        while received is None and time.monotonic() < deadline:
+            a.publish("t/1", b"payload", attachment=b"\x01\x02")
+            received = got.get(timeout=0.2)
+        assert received == (b"payload", b"\x01\x02")
+        wait_until(lambda: hub.query("srv/t/h", b"q", attachment=b"at", timeout=2.0) == [("srv/t/h", b"q!", b"at")], 20.0, "a reply")
+        assert a.session_id != hub.session_id and int(a.session_id, 16) > 0
+    finally:
+        for bus in (a, hub):
+            bus.close()
