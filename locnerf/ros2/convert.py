@@ -92,12 +92,12 @@ def _tangent_to_ros(rotation: torch.Tensor) -> torch.Tensor:
     return a
 
 
-def covariance_to_ros(covariance: torch.Tensor, pose: torch.Tensor) -> list[float]:
+def covariance_to_ros(covariance: torch.Tensor, pose: torch.Tensor) -> np.ndarray:
     """(6, 6) covariance in locnerf's right tangent (rotation, translation) at ``pose`` (4, 4) ->
-    36 floats, ROS row-major (x, y, z, roll, pitch, yaw about the parent's axes)."""
+    (36,) float64, ROS row-major (x, y, z, roll, pitch, yaw about the parent's axes)."""
     a = _tangent_to_ros(pose[:3, :3])
     out = a @ covariance.double() @ a.T
-    return (0.5 * (out + out.T)).reshape(-1).tolist()
+    return (0.5 * (out + out.T)).reshape(-1).numpy()
 
 
 def covariance_from_ros(values, pose: torch.Tensor) -> torch.Tensor:
@@ -106,7 +106,7 @@ def covariance_from_ros(values, pose: torch.Tensor) -> torch.Tensor:
     Raises:
         DecodeError: ``ros2_invalid`` for a covariance that is not 36 finite values.
     """
-    flat = torch.as_tensor(np.asarray(values, dtype=np.float64))
+    flat = torch.tensor(np.array(values, dtype=np.float64))
     if flat.numel() != 36 or not torch.isfinite(flat).all():
         raise DecodeError("ros2_invalid", f"covariance of {flat.numel()} values: expected 36 finite values")
     a_inverse = _tangent_to_ros(pose[:3, :3]).T

@@ -18,6 +18,7 @@ from locnerf.devices import resolve_device
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
 from services.filter_loop.driver import FilterDriver
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
+from services.ros2.config import Ros2Config
 from services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, stop_on_signals
 from services.transport import Bus, TransportConfig, open_bus
 
@@ -37,6 +38,7 @@ class FilterProcessConfig(BaseModel):
     loop: FilterLoopConfig = Field(default_factory=FilterLoopConfig, description="Timing and fault handling.")
     torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
     transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
+    ros2: Ros2Config = Field(default_factory=Ros2Config, description="ROS 2 over rmw_zenoh: topics in and out (docs/ROS2.md).")
 
 
 def localizer_config(spec: str) -> LocalizerConfig:
@@ -58,10 +60,16 @@ def build_loop(config: FilterProcessConfig) -> FilterLoop:
     return FilterLoop(config.robot_id, localizer, normalization, region, config.loop, time.monotonic)
 
 
-def serve(loop: FilterLoop, bus: Bus, stop: threading.Event) -> None:
+def serve(loop: FilterLoop, bus: Bus, stop: threading.Event, ros2: Ros2Config | None = None) -> None:
     """Run the loop until ``stop``: callbacks only enqueue, this thread does all the work, odometry
-    first (:mod:`services.filter_loop.driver`)."""
-    driver = FilterDriver(loop, bus)
+    first (:mod:`services.filter_loop.driver`); with ``ros2`` enabled it also speaks ROS 2."""
+    bridge = None
+    if ros2 is not None and ros2.enabled:
+        from services.ros2.filter_bridge import FilterRos2Bridge
+
+        bridge = FilterRos2Bridge(loop, bus, ros2)
+        logger.info("ROS 2 node %s in domain %d (session %s)", ros2.node_name, ros2.domain_id, bus.session_id)
+    driver = FilterDriver(loop, bus, ros2=bridge)
     handles = driver.subscribe()
     logger.info("filter loop serving robot %s", loop.robot_id)
     try:
@@ -93,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     bus = open_bus(config.transport.with_environment())
     try:
-        serve(loop, bus, stop)
+        serve(loop, bus, stop, config.ros2)
     finally:
         bus.close()
     return 0

@@ -13,6 +13,11 @@ one-slot buffer, newest only). One thread calls :meth:`FilterDriver.step` in a l
 4. takes the newest image; returns again if odometry arrived meanwhile;
 5. runs the periodic work (expire, start an update, particle cloud, status) and publishes it.
 
+With a ROS 2 bridge (:mod:`services.ros2.filter_bridge`), ROS odometry, images and commands
+join the same lanes as locnerf's own (their payload is a ``(CDR, attachment)`` pair, translated on
+this thread; a translation failure is counted like any bad message), camera infos join the normal
+lane, and the bridge publishes the ROS counterparts of every pose and particle cloud.
+
 An odometry message therefore waits at most for one piece of non-odometry work that had already
 started when it arrived. The durations of every kind of work and the odometry's wait are kept in
 :class:`ThreadTimings` and logged every ``log_period`` seconds.
@@ -23,20 +28,25 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from locnerf.messages import keys
+from locnerf.messages.codec import DecodeError
 from services.filter_loop.lanes import LaneInbox
 from services.filter_loop.service import FilterLoop, Outgoing
 from services.filter_loop.timings import ThreadTimings
 from services.transport import Bus, LatestSlot
 from services.transport.bus import Closeable
 
+if TYPE_CHECKING:
+    from services.ros2.filter_bridge import FilterRos2Bridge
+
 logger = logging.getLogger(__name__)
 
 URGENT, NORMAL = 0, 1
 
-# (kind, key, payload, arrival in monotonic seconds)
-Arrival = tuple[str, str, bytes | bool | None, float]
+# (kind, key, payload, arrival in monotonic seconds); a ROS 2 payload is (CDR, attachment)
+Arrival = tuple[str, str, Any, float]
 
 
 class FilterDriver:
@@ -47,21 +57,31 @@ class FilterDriver:
         bus: where messages come from and go to.
         clock: monotonic seconds (arrival stamps and timings).
         log_period: seconds between two timing summaries in the log.
+        ros2: the ROS 2 bridge, if the filter speaks ROS 2.
     """
 
-    def __init__(self, loop: FilterLoop, bus: Bus, clock: Callable[[], float] = time.monotonic, log_period: float = 30.0) -> None:
+    def __init__(
+        self,
+        loop: FilterLoop,
+        bus: Bus,
+        clock: Callable[[], float] = time.monotonic,
+        log_period: float = 30.0,
+        ros2: FilterRos2Bridge | None = None,
+    ) -> None:
         self.loop = loop
         self.bus = bus
+        self.ros2 = ros2
         self.clock = clock
         self.log_period = log_period
         self.inbox: LaneInbox[Arrival] = LaneInbox(lanes=2, capacity=1024)
-        self.images: LatestSlot[bytes] = LatestSlot()
+        self.images: LatestSlot[tuple[str, Any]] = LatestSlot()
         self.timings = ThreadTimings()
-        self._handlers: dict[str, Callable[[str, bytes | bool | None], Outgoing]] = {
-            "odometry": lambda _key, payload: loop.handle_odometry(payload),
+        self._handlers: dict[str, Callable[[str, Any], Outgoing]] = {
+            "odometry": lambda key, payload: self._translated(key, payload, "odometry", loop.handle_odometry),
             "result": lambda _key, payload: loop.handle_result(payload),
-            "initial_pose": lambda _key, payload: loop.handle_initial_pose(payload),
-            "global_localization": lambda _key, payload: loop.handle_global_localization(payload),
+            "initial_pose": lambda key, payload: self._translated(key, payload, "initial_pose", loop.handle_initial_pose),
+            "global_localization": lambda key, payload: self._translated(key, payload, "global_localization", loop.handle_global_localization),
+            "camera_info": lambda key, payload: self._translated(key, payload, "camera_info", lambda _none: []),
             "worker": loop.worker_changed,
             "image": lambda _key, _payload: self._take_image(),
         }
@@ -84,19 +104,36 @@ class FilterDriver:
         handles.append(
             self.bus.watch_liveliness(keys.workers_alive_pattern(robot), lambda key, alive: self._arrive(NORMAL, "worker", key, alive))
         )
+        if self.ros2 is not None:
+            self.ros2.subscribe(
+                lambda urgent, kind, key, received: self._arrive(URGENT if urgent else NORMAL, kind, key, received),
+                lambda key, received: self._image_arrived(key, received),
+            )
+            handles.append(self.ros2)
         return handles
 
-    def _arrive(self, lane: int, kind: str, key: str, payload: bytes | bool) -> None:
+    def _translated(self, key: str, payload: Any, kind: str, handle: Callable[[Any], Outgoing]) -> Outgoing:
+        """``handle`` a locnerf payload; a ROS 2 one, ``(CDR, attachment)``, is translated by the
+        bridge first (a failure is counted as a bad message and dropped)."""
+        if isinstance(payload, tuple):
+            try:
+                payload = getattr(self.ros2, kind)(key, payload)
+            except DecodeError as error:
+                self.loop.bad.record(error.kind, error.reason)
+                return []
+        return handle(payload)
+
+    def _arrive(self, lane: int, kind: str, key: str, payload: Any) -> None:
         self.inbox.put(lane, (kind, key, payload, self.clock()))
 
-    def _image_arrived(self, key: str, payload: bytes) -> None:
-        self.images.put(payload)
+    def _image_arrived(self, key: str, payload: Any) -> None:
+        self.images.put((key, payload))
         self.inbox.put(NORMAL, ("image", key, None, self.clock()))
 
     def _take_image(self) -> Outgoing:
         image = self.images.take()
         self.loop.images_replaced_upstream = self.images.replaced
-        return self.loop.handle_image(image) if image is not None else []
+        return self._translated(*image, "image", self.loop.handle_image) if image is not None else []
 
     def _run(self, kind: str, work: Callable[[], Outgoing], only_if_output: bool = False) -> None:
         """Do one piece of work, publish its output, record its duration under ``kind`` (periodic
@@ -111,6 +148,8 @@ class FilterDriver:
             self.timings.record("odometry_cpu", time.thread_time() - cpu_started)
         for key, payload in outgoing:
             self.bus.publish(key, payload)
+        if self.ros2 is not None and outgoing:
+            self.ros2.publish_outputs(outgoing)
         if outgoing or not only_if_output:
             if only_if_output:
                 kind += ":" + "+".join(sorted({"update_start" if "/update/request/" in key else key.rsplit("/", 1)[-1] for key, _ in outgoing}))

@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import PoseEstimate as FilterEstimate, carry_estimate
@@ -63,6 +63,21 @@ class FilterLoopConfig(BaseModel):
     particles_rate: float = Field(2.0, gt=0, description="Particle clouds published per second.")
     status_rate: float = Field(1.0, gt=0, description="Status messages published per second.")
     state_file: str = Field("", description="File where the last pose is saved and resumed from on restart (empty: none).")
+    T_body_cam: list[list[float]] = Field(
+        default_factory=lambda: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
+        description="4×4 pose of the camera (locnerf's OpenGL axes: x right, y up, z back) in the odometry's body frame, metres. "
+        "Odometry of the body is carried to the camera with it; ROS 2 outputs give the body pose. Identity: the body is the camera. "
+        "From an OpenCV/ROS optical-frame extrinsic T_body_optical (e.g. EuRoC's T_BS) it is opencv_to_opengl(T_body_optical).",
+    )
+
+    @field_validator("T_body_cam")
+    @classmethod
+    def _extrinsic(cls, value: list[list[float]]) -> list[list[float]]:
+        pose = torch.tensor(value, dtype=torch.float64)
+        if pose.shape != (4, 4):
+            raise ValueError(f"T_body_cam: expected a 4×4 matrix, got shape {tuple(pose.shape)}")
+        validate_poses(pose, name="T_body_cam")
+        return value
 
 
 class FilterLoop:
@@ -107,6 +122,7 @@ class FilterLoop:
         self._estimate_stale = False
         self._pending_increment: torch.Tensor | None = None
         self._prediction_pending = False
+        self.T_body_cam = torch.tensor(config.T_body_cam, dtype=torch.float64)
         self._start()
 
     # ------------------------------------------------------------------ initialisation
@@ -173,6 +189,7 @@ class FilterLoop:
             message = decode(payload, Odometry)
             pose = torch.tensor(message.T_odom_body, dtype=torch.float64)
             validate_poses(pose, name="T_odom_body")
+            pose = pose @ self.T_body_cam  # T_odom_cam: the filter moves camera poses
             latest = self.history.latest_stamp
             if latest is not None and message.stamp < latest - self.config.odometry_horizon:
                 logger.warning("odometry stamps restarted (%.3f after %.3f): treating it as a new odometry session", message.stamp, latest)
@@ -338,11 +355,14 @@ class FilterLoop:
         kept = image if self.localizer.keyframes is not None else None
         return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept))
 
+    def metric_particle_poses(self) -> torch.Tensor:
+        """(N, 4, 4) float64 camera poses of the particles, metric, in the map's world frame (needs particles)."""
+        return map_to_metric(self.localizer.particles.poses.double().cpu(), self.normalization)
+
     def _particles_message(self) -> tuple[str, bytes]:
-        particles = self.localizer.particles
-        poses = map_to_metric(particles.poses.double().cpu(), self.normalization)
+        poses = self.metric_particle_poses()
         message = ParticleCloud(
-            stamp=self.history.latest_stamp or 0.0, positions=poses[:, :3, 3].tolist(), weights=particles.weights.double().cpu().tolist()
+            stamp=self.history.latest_stamp or 0.0, positions=poses[:, :3, 3].tolist(), weights=self.localizer.particles.weights.double().cpu().tolist()
         )
         return self._key(keys.PARTICLES), encode(message)
 

@@ -1,0 +1,34 @@
+"""Settings of the filter's ROS 2 interface (topic names and frames default to nav2_amcl's)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class Ros2Config(BaseModel):
+    """ROS 2 over rmw_zenoh: which topics the filter reads and writes, in which domain and frames."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    enabled: bool = Field(False, description="Speak ROS 2 on the Zenoh session (publish amcl_pose, particle_cloud, /tf; serve the commands).")
+    sensors: bool = Field(True, description="When enabled, also read odometry and camera topics (the filter is then its own ROS 2 ingest).")
+    domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID of the ROS 2 graph.")
+    namespace: str = Field("", description="Namespace of the node and of its relative topic names, e.g. /robot1 ('' = global).")
+    node_name: str = Field("locnerf", description="Node name shown by `ros2 node list`.")
+    odometry_topic: str = Field("odom", description="nav_msgs/msg/Odometry of the VIO (pose of base_frame_id in odom_frame_id).")
+    image_topic: str = Field("camera/image_raw", description="sensor_msgs/msg/Image (rgb8, bgr8, mono8) or, with compressed, its /compressed topic.")
+    image_transport: Literal["raw", "compressed"] = Field("raw", description="raw: sensor_msgs/msg/Image; compressed: sensor_msgs/msg/CompressedImage (jpeg, png).")
+    camera_info_topic: str = Field("camera/camera_info", description="sensor_msgs/msg/CameraInfo with the intrinsics and distortion of the images.")
+    initial_pose_topic: str = Field("initialpose", description="geometry_msgs/msg/PoseWithCovarianceStamped of base_frame_id in global_frame_id (RViz's 2D Pose Estimate).")
+    pose_topic: str = Field("amcl_pose", description="geometry_msgs/msg/PoseWithCovarianceStamped published at the odometry rate.")
+    particles_topic: str = Field("particle_cloud", description="geometry_msgs/msg/PoseArray of the particles (base frame poses).")
+    tf_topic: str = Field("/tf", description="tf2_msgs/msg/TFMessage carrying global_frame_id -> odom_frame_id.")
+    global_localization_service: str = Field(
+        "reinitialize_global_localization", description="std_srvs/srv/Empty service that re-initialises over the whole map."
+    )
+    global_frame_id: str = Field("map", description="The map frame (locnerf's metric world frame).")
+    odom_frame_id: str = Field("odom", description="The odometry frame of the VIO.")
+    base_frame_id: str = Field("base_link", description="The robot body frame (T_body_cam relates it to the camera).")
+    publish_tf: bool = Field(True, description="Publish map -> odom on tf_topic, as nav2_amcl's tf_broadcast.")

@@ -1,0 +1,199 @@
+"""The filter's ROS 2 face: ROS messages in (odometry, images, initial pose, the global
+localization service) translated to locnerf's messages, and locnerf's pose and particles out as
+nav2_amcl publishes them (``amcl_pose``, ``particle_cloud``, ``map → odom`` on ``/tf``).
+
+Frames (REP 103/105; docs/ROS2.md draws them): ``map`` is locnerf's metric world frame, ``odom``
+the VIO's frame, ``base_link`` the body, and the camera is ``T_body_cam`` from the body (OpenGL
+axes inside locnerf). With the camera pose ``T_map_cam`` from the filter and the odometry
+``T_odom_base`` at the same stamp:
+
+    T_map_base = T_map_cam · T_body_cam⁻¹,   T_map_odom = T_map_base · T_odom_base⁻¹   (as nav2_amcl)
+
+Translation runs on the filter thread; the transport callbacks only enqueue. Every failure raises
+:class:`DecodeError` with a ``ros2_*`` kind, which the driver counts in the filter's bad-message
+counters (visible in FilterStatus).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import torch
+
+from locnerf.geometry.se3 import pose_inverse
+from locnerf.messages import keys
+from locnerf.messages.codec import DecodeError, decode, encode, encode_image
+from locnerf.messages.schemas import GlobalLocalizationCommand, ImageHeader, InitialPoseCommand, Odometry, PoseEstimate
+from locnerf.ros2 import convert
+from locnerf.ros2.attachment import Attachment
+from locnerf.ros2.naming import check_key
+from locnerf.ros2.types import EMPTY_SERVICE, deserialize, message_class, serialize
+from services.filter_loop.service import FilterLoop
+from services.ros2.config import Ros2Config
+from services.ros2.node import Ros2Node
+from services.transport import Bus
+
+logger = logging.getLogger(__name__)
+
+ODOMETRY = "nav_msgs/msg/Odometry"
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
+POSE_ARRAY = "geometry_msgs/msg/PoseArray"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+
+# (payload, attachment) of a received ROS 2 sample
+Received = tuple[bytes, bytes | None]
+
+
+class FilterRos2Bridge:
+    """Translates between a :class:`FilterLoop` and ROS 2 topics on ``bus``.
+
+    Args:
+        loop: the filter (its T_body_cam, odometry history, particles and bad-message counters).
+        bus: the Zenoh session.
+        config: topics, domain, frames.
+    """
+
+    def __init__(self, loop: FilterLoop, bus: Bus, config: Ros2Config) -> None:
+        self.loop = loop
+        self.config = config
+        self.node = Ros2Node(bus, config.domain_id, config.node_name, config.namespace)
+        self.T_body_cam = loop.T_body_cam
+        self.T_cam_body = pose_inverse(loop.T_body_cam)
+        self._camera: tuple | None = None  # (intrinsics, K, distortion) of the newest CameraInfo
+        self.pose_publisher = self.node.publisher(config.pose_topic, POSE_WITH_COVARIANCE)
+        self.particles_publisher = self.node.publisher(config.particles_topic, POSE_ARRAY)
+        self.tf_publisher = self.node.publisher(config.tf_topic, TF_MESSAGE) if config.publish_tf else None
+        self.names: dict[str, str] = {}
+        self.image_type = IMAGE if config.image_transport == "raw" else COMPRESSED_IMAGE
+
+    # ------------------------------------------------------------------ wiring
+    def subscribe(self, arrive, image_arrived) -> None:
+        """Declare the subscriptions and the service; callbacks only enqueue.
+
+        Args:
+            arrive: ``arrive(urgent, kind, key, (payload, attachment))`` queues a message for the filter thread.
+            image_arrived: ``image_arrived(key, (payload, attachment))`` keeps the newest image.
+        """
+        config = self.config
+        wanted = {"initial_pose": (config.initial_pose_topic, POSE_WITH_COVARIANCE, False)}
+        if config.sensors:
+            wanted |= {"odometry": (config.odometry_topic, ODOMETRY, True), "camera_info": (config.camera_info_topic, CAMERA_INFO, False)}
+        for kind, (topic, ros_type, urgent) in wanted.items():
+            self.names[kind] = self.node.subscription(
+                topic, ros_type, lambda key, payload, attachment, kind=kind, urgent=urgent: arrive(urgent, kind, key, (payload, attachment))
+            )
+        if config.sensors:
+            self.names["image"] = self.node.subscription(
+                config.image_topic, self.image_type, lambda key, payload, attachment: image_arrived(key, (payload, attachment))
+            )
+        response = serialize(message_class(f"{EMPTY_SERVICE}_Response")(), f"{EMPTY_SERVICE}_Response")
+
+        def global_localization(key: str, payload: bytes, _request: Attachment | None) -> bytes:
+            arrive(False, "global_localization", key, (payload, None))
+            return response
+
+        self.node.service(config.global_localization_service, EMPTY_SERVICE, global_localization)
+
+    def close(self) -> None:
+        """Undeclare the node's entities."""
+        self.node.close()
+
+    # ------------------------------------------------------------------ in (filter thread)
+    def _open(self, kind: str, ros_type: str, key: str, received: Received) -> object:
+        payload, attachment = received
+        check_key(key, self.config.domain_id, self.names[kind], ros_type)
+        Attachment.decode(attachment)
+        return deserialize(payload, ros_type)
+
+    def odometry(self, key: str, received: Received) -> bytes:
+        """nav_msgs/Odometry -> locnerf Odometry payload (the body pose in the odometry frame)."""
+        message = self._open("odometry", ODOMETRY, key, received)
+        pose = convert.pose_from_message(message.pose.pose)
+        return encode(Odometry(stamp=convert.seconds(message.header.stamp), frame_id=self.config.odom_frame_id, T_odom_body=pose.tolist()))
+
+    def camera_info(self, key: str, received: Received) -> None:
+        """Keep the intrinsics and distortion for the following images (nothing to hand on)."""
+        self._camera = convert.intrinsics_from_camera_info(self._open("camera_info", CAMERA_INFO, key, received))
+
+    def image(self, key: str, received: Received) -> bytes:
+        """sensor_msgs/Image or CompressedImage -> a locnerf image frame (undistorted, RGB)."""
+        message = self._open("image", self.image_type, key, received)
+        if self._camera is None:
+            raise DecodeError("ros2_no_camera_info", f"image before any CameraInfo on {self.names.get('camera_info')}")
+        intrinsics, k, distortion = self._camera
+        pixels = convert.pixels_from_image(message) if self.image_type == IMAGE else convert.pixels_from_compressed(message)
+        if pixels.shape[:2] != (intrinsics.height, intrinsics.width):
+            raise DecodeError("ros2_image_size", f"image {pixels.shape[1]}×{pixels.shape[0]}, camera info {intrinsics.width}×{intrinsics.height}")
+        pixels = convert.undistort(pixels, k, distortion)
+        header = ImageHeader(
+            stamp=convert.seconds(message.header.stamp), frame_id=message.header.frame_id, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics
+        )
+        return encode_image(header, pixels)
+
+    def initial_pose(self, key: str, received: Received) -> bytes:
+        """PoseWithCovarianceStamped of the body in the map -> locnerf InitialPoseCommand of the camera."""
+        message = self._open("initial_pose", POSE_WITH_COVARIANCE, key, received)
+        if message.header.frame_id.lstrip("/") != self.config.global_frame_id:
+            raise DecodeError("ros2_frame", f"initial pose in frame {message.header.frame_id!r}, expected {self.config.global_frame_id!r}")
+        T_map_base = convert.pose_from_message(message.pose.pose)
+        covariance_body = convert.covariance_from_ros(message.pose.covariance, T_map_base)
+        to_camera = convert.adjoint(self.T_cam_body)  # δ_cam = Ad(T_body_cam⁻¹) δ_body
+        covariance = to_camera @ covariance_body @ to_camera.T
+        T_map_cam = T_map_base @ self.T_body_cam
+        try:
+            command = InitialPoseCommand(
+                stamp=convert.seconds(message.header.stamp), T_world_cam=T_map_cam.tolist(), covariance=(0.5 * (covariance + covariance.T)).tolist()
+            )
+        except ValueError as error:
+            raise DecodeError("ros2_invalid", f"initial pose: {error}") from None
+        return encode(command)
+
+    def global_localization(self, _key: str, _received: Received) -> bytes:
+        """The service was called: a locnerf GlobalLocalizationCommand."""
+        return encode(GlobalLocalizationCommand(stamp=self.loop.history.latest_stamp or 0.0))
+
+    # ------------------------------------------------------------------ out (filter thread)
+    def publish_outputs(self, outgoing: list[tuple[str, bytes]]) -> None:
+        """Publish the ROS 2 counterparts of the filter's pose and particle messages in ``outgoing``."""
+        pose_key, particles_key = keys.key(self.loop.robot_id, keys.POSE), keys.key(self.loop.robot_id, keys.PARTICLES)
+        for key, payload in outgoing:
+            if key == pose_key:
+                self._publish_pose(decode(payload, PoseEstimate))
+            elif key == particles_key and self.loop.running:
+                self._publish_particles()
+
+    def _publish_pose(self, estimate: PoseEstimate) -> None:
+        T_map_cam = torch.tensor(estimate.T_world_cam, dtype=torch.float64)
+        T_map_base = T_map_cam @ self.T_cam_body
+        to_body = convert.adjoint(self.T_body_cam)  # δ_body = Ad(T_body_cam) δ_cam
+        covariance = to_body @ torch.tensor(estimate.covariance, dtype=torch.float64) @ to_body.T
+        pose_type = message_class("geometry_msgs/msg/PoseWithCovariance")
+        self.pose_publisher.publish(
+            message_class(POSE_WITH_COVARIANCE)(
+                header=convert.header(estimate.stamp, self.config.global_frame_id),
+                pose=pose_type(pose=convert.pose_message(T_map_base), covariance=convert.covariance_to_ros(covariance, T_map_base)),
+            )
+        )
+        T_odom_cam = self.loop.history.latest_pose
+        if self.tf_publisher is None or T_odom_cam is None:
+            return
+        T_odom_base = T_odom_cam @ self.T_cam_body
+        T_map_odom = T_map_base @ pose_inverse(T_odom_base)
+        transform = message_class("geometry_msgs/msg/TransformStamped")(
+            header=convert.header(estimate.stamp, self.config.global_frame_id),
+            child_frame_id=self.config.odom_frame_id,
+            transform=convert.transform_message(T_map_odom),
+        )
+        self.tf_publisher.publish(message_class(TF_MESSAGE)(transforms=[transform]))
+
+    def _publish_particles(self) -> None:
+        poses = self.loop.metric_particle_poses() @ self.T_cam_body
+        self.particles_publisher.publish(
+            message_class(POSE_ARRAY)(
+                header=convert.header(self.loop.history.latest_stamp or 0.0, self.config.global_frame_id),
+                poses=[convert.pose_message(pose) for pose in poses],
+            )
+        )

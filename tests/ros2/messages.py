@@ -1,0 +1,50 @@
+"""ROS 2 test messages made with rosbags: what a VIO, a camera driver and RViz would publish."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.ros2 import convert
+from locnerf.ros2.types import message_class
+
+
+def odometry(stamp: float, T_odom_base: torch.Tensor, odom_frame: str = "odom", base_frame: str = "base_link") -> object:
+    """nav_msgs/Odometry with the pose ``T_odom_base`` (4, 4) and zero twist."""
+    pose = message_class("geometry_msgs/msg/PoseWithCovariance")(pose=convert.pose_message(T_odom_base), covariance=np.zeros(36))
+    vector = message_class("geometry_msgs/msg/Vector3")
+    twist = message_class("geometry_msgs/msg/Twist")(linear=vector(0.0, 0.0, 0.0), angular=vector(0.0, 0.0, 0.0))
+    return message_class("nav_msgs/msg/Odometry")(
+        header=convert.header(stamp, odom_frame),
+        child_frame_id=base_frame,
+        pose=pose,
+        twist=message_class("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=np.zeros(36)),
+    )
+
+
+def image(stamp: float, pixels: np.ndarray, encoding: str = "rgb8", frame: str = "camera_optical_frame") -> object:
+    """sensor_msgs/Image of RGB pixels (H, W, 3) uint8, written as ``encoding`` (rgb8 or bgr8)."""
+    height, width = pixels.shape[:2]
+    data = pixels[..., ::-1] if encoding == "bgr8" else pixels
+    return message_class("sensor_msgs/msg/Image")(
+        header=convert.header(stamp, frame), height=height, width=width, encoding=encoding, is_bigendian=0, step=3 * width,
+        data=np.ascontiguousarray(data).reshape(-1),
+    )
+
+
+def camera_info(stamp: float, intrinsics: PinholeIntrinsics, frame: str = "camera_optical_frame") -> object:
+    """sensor_msgs/CameraInfo of an undistorted pinhole camera."""
+    k = np.array([intrinsics.fx, 0.0, intrinsics.cx, 0.0, intrinsics.fy, intrinsics.cy, 0.0, 0.0, 1.0])
+    p = np.array([intrinsics.fx, 0.0, intrinsics.cx, 0.0, 0.0, intrinsics.fy, intrinsics.cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+    roi = message_class("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    return message_class("sensor_msgs/msg/CameraInfo")(
+        header=convert.header(stamp, frame), height=intrinsics.height, width=intrinsics.width, distortion_model="plumb_bob",
+        d=np.zeros(5), k=k, r=np.eye(3).reshape(-1), p=p, binning_x=0, binning_y=0, roi=roi,
+    )
+
+
+def initial_pose(stamp: float, T_map_base: torch.Tensor, covariance_ros: list[float], frame: str = "map") -> object:
+    """geometry_msgs/PoseWithCovarianceStamped, as RViz's 2D Pose Estimate sends it."""
+    pose = message_class("geometry_msgs/msg/PoseWithCovariance")(pose=convert.pose_message(T_map_base), covariance=np.asarray(covariance_ros, dtype=np.float64))
+    return message_class("geometry_msgs/msg/PoseWithCovarianceStamped")(header=convert.header(stamp, frame), pose=pose)
