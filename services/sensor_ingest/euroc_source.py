@@ -2,9 +2,11 @@
 
 Images keep their EuRoC stamps (seconds since the epoch) and are undistorted with the camera's
 radial-tangential model (grey frames become three equal channels). locnerf runs no VIO of its own,
-so the odometry is synthesised from the ground-truth camera trajectory (body pose · ``T_BS``,
-interpolated geodesically) with the VIO-like noise and drift of :mod:`.synthetic_odometry`; the
-ground truth is published beside it. IMU samples are not read. Only frames inside the ground
+so the odometry is synthesised from the ground-truth trajectory (interpolated geodesically) with the
+VIO-like noise and drift of :mod:`.synthetic_odometry`: of the camera (body pose · ``T_BS``) by
+default, or of the body (IMU) frame, as a real VIO reports it, with ``odometry_frame = "body"``;
+the filter then needs ``loop.T_body_cam`` = :func:`euroc_T_body_cam`. The ground truth (camera) is
+published beside it. IMU samples are not read. Only frames inside the ground
 truth's time span are sent.
 """
 
@@ -12,13 +14,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from typing import Literal
 
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.data.euroc import EurocSequence
+from locnerf.data.euroc import EurocCamera, EurocSequence
 from locnerf.geometry.frames import opencv_to_opengl
+from locnerf.geometry.se3 import pose_inverse
 from services.poses import interpolate_pose
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
@@ -35,6 +39,17 @@ class EurocSourceConfig(BaseModel):
     downscale: float = Field(1.0, ge=1, description="Image size divisor (area resize after undistortion).")
     odometry_rate: float = Field(15.0, gt=0, description="Odometry (and ground-truth) messages per second.")
     odometry: OdometryNoiseConfig = Field(default_factory=OdometryNoiseConfig, description="VIO noise and drift.")
+    odometry_frame: Literal["camera", "body"] = Field(
+        "camera",
+        description="Frame whose motion the odometry reports: the camera (the filter's T_body_cam is identity) "
+        "or the body/IMU as a VIO does (set the filter's loop.T_body_cam to euroc_T_body_cam, i.e. T_BS in OpenGL axes).",
+    )
+
+
+def euroc_T_body_cam(camera: EurocCamera) -> torch.Tensor:
+    """(4, 4) float64 pose of the camera in locnerf's OpenGL axes in the body frame: ``T_BS`` converted,
+    the value of the filter's ``loop.T_body_cam`` for body odometry."""
+    return opencv_to_opengl(camera.T_body_cam)
 
 
 def camera_trajectory_at(sequence: EurocSequence, stamps: np.ndarray) -> torch.Tensor:
@@ -59,6 +74,7 @@ def euroc_events(sequence: EurocSequence, config: EurocSourceConfig, generator: 
     if len(frames) == 0:
         raise ValueError(f"{sequence.root}: no image lies inside the ground truth's time span")
     truth = camera_trajectory_at(sequence, odometry_stamps)
+    moving = truth if config.odometry_frame == "camera" else truth @ pose_inverse(euroc_T_body_cam(sequence.camera))
     intrinsics = sequence.camera.intrinsics.scaled(1.0 / config.downscale)
     odometry = SyntheticOdometry(config.odometry, generator)
     timeline = sorted([(float(s), 0, i) for i, s in enumerate(odometry_stamps)] + [(float(sequence.image_stamps[k]), 1, int(k)) for k in frames])
@@ -67,4 +83,4 @@ def euroc_events(sequence: EurocSequence, config: EurocSourceConfig, generator: 
             yield ImageEvent(stamp, sequence.read_image(index, config.downscale), intrinsics)
             continue
         yield GroundTruthEvent(stamp, truth[index])
-        yield OdometryEvent(stamp, odometry.step(stamp, truth[index]))
+        yield OdometryEvent(stamp, odometry.step(stamp, moving[index]))

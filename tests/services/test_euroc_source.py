@@ -16,7 +16,7 @@ from locnerf.geometry.frames import opengl_to_opencv
 from locnerf.geometry.quaternion import quaternion_to_matrix
 from locnerf.geometry.se3 import pose_inverse
 from services.sensor_ingest.__main__ import IngestConfig, sensor_events
-from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
+from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_T_body_cam, euroc_events
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig
 
@@ -98,3 +98,17 @@ def test_ground_truth_outside_the_images_is_refused(euroc: Path, tmp_path: Path)
     with pytest.raises(ValueError, match="does not overlap"):
         read_euroc(euroc, groundtruth=shifted)
     assert len(list(itertools.islice(euroc_events(read_euroc(euroc), EurocSourceConfig(), torch.Generator()), 3))) == 3
+
+
+def test_body_odometry_moves_the_camera_through_t_bs(euroc: Path, generator: torch.Generator) -> None:
+    """With odometry of the body, T_body_cam (T_BS in OpenGL axes) carries it to the camera's motion."""
+    sequence = read_euroc(euroc)
+    events = list(euroc_events(sequence, EurocSourceConfig(odometry=QUIET, odometry_frame="body"), generator))
+    truth = [e.T_world_cam for e in events if isinstance(e, GroundTruthEvent)]
+    odometry = [e.T_odom_body for e in events if isinstance(e, OdometryEvent)]
+    T_body_cam = euroc_T_body_cam(sequence.camera)
+    torch.testing.assert_close(opengl_to_opencv(T_body_cam), sequence.camera.T_body_cam)
+    camera_motion = pose_inverse(odometry[0] @ T_body_cam) @ odometry[-1] @ T_body_cam
+    torch.testing.assert_close(camera_motion, pose_inverse(truth[0]) @ truth[-1], atol=1e-9, rtol=0)
+    body_motion = pose_inverse(odometry[0]) @ odometry[-1]
+    assert not torch.allclose(body_motion, camera_motion, atol=1e-3), "the body and the camera move differently"
