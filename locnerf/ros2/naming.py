@@ -69,12 +69,16 @@ def data_pattern(domain_id: int, fq_name: str) -> str:
 
 
 def check_key(key: str, domain_id: int, fq_name: str, ros_type: str) -> None:
-    """Raise unless ``key`` carries ``ros_type``'s DDS name and type hash.
+    """Raise unless ``key`` is ``fq_name`` in ``domain_id`` with ``ros_type``'s DDS name and type hash.
 
     Raises:
-        DecodeError: ``ros2_type_name`` or ``ros2_type_hash`` naming the received and expected values.
+        DecodeError: ``ros2_key`` (another domain or name), ``ros2_type_name`` or ``ros2_type_hash``,
+            naming the received and expected values.
     """
-    received_name, received_hash = key.rsplit("/", 2)[-2:]
+    prefix = f"{domain_id}/{fq_name.lstrip('/')}/"
+    if not key.startswith(prefix) or key[len(prefix) :].count("/") != 1:
+        raise DecodeError("ros2_key", f"{key}: expected {prefix}<type name>/<type hash>")
+    received_name, received_hash = key[len(prefix) :].split("/")
     if received_name != dds_type_name(ros_type):
         raise DecodeError("ros2_type_name", f"{key}: type {received_name!r}, expected {dds_type_name(ros_type)!r}")
     if received_hash != type_hash(ros_type):

@@ -1,9 +1,14 @@
 """ROS 2 message types: the rosbags type store, DDS type names, RIHS01 hashes and CDR.
 
-The type store is rosbags' Kilted store (the message definitions used here are identical in
-Jazzy; a test pins that their hashes agree). ``std_srvs/srv/Empty`` is not in rosbags' stores and
-is registered here as rosidl describes a service: a struct of ``request_message``,
-``response_message`` and ``event_message`` (REP-2016), so rosbags can hash it.
+The type store holds rosbags' Kilted definitions (those used here are identical in Jazzy; a test
+pins that their hashes agree) with two changes:
+
+* ``service_msgs/msg/ServiceEventInfo.client_gid`` is ``uint8[16]``: its .msg says ``char[16]``,
+  and a ROS 2 .msg ``char`` is an alias of ``uint8``, which is how rosidl hashes it; rosbags keeps
+  it as ``char`` and then hashes every service wrongly.
+* ``std_srvs/srv/Empty`` (not in rosbags' stores) is registered as rosidl describes a service: a
+  struct of ``request_message``, ``response_message`` and ``event_message`` whose event message is
+  ``info``, ``request[<=1]``, ``response[<=1]`` (REP-2016), so rosbags can hash it.
 """
 
 from __future__ import annotations
@@ -19,25 +24,39 @@ from locnerf.messages.codec import DecodeError
 EMPTY_SERVICE = "std_srvs/srv/Empty"
 
 
-def _service_definitions(service: str) -> dict:
-    """rosbags field definitions of a service without request or response fields (std_srvs/Empty)."""
+SERVICE_EVENT_INFO = "service_msgs/msg/ServiceEventInfo"
+
+
+def service_definitions(service: str, request_fields: list, response_fields: list) -> dict:
+    """rosbags definitions of a service ``pkg/srv/Name``: its request, response and event messages
+    and the service itself, as rosidl's type description has them (fields in rosbags' form)."""
     request, response, event = f"{service}_Request", f"{service}_Response", f"{service}_Event"
     nested = lambda name: (Nodetype.NAME, name)  # noqa: E731
     bounded_one = lambda name: (Nodetype.SEQUENCE, ((Nodetype.NAME, name), 1))  # noqa: E731
     return {
-        request: ([], []),
-        response: ([], []),
-        event: ([], [("info", nested("service_msgs/msg/ServiceEventInfo")), ("request", bounded_one(request)), ("response", bounded_one(response))]),
+        request: ([], request_fields),
+        response: ([], response_fields),
+        event: ([], [("info", nested(SERVICE_EVENT_INFO)), ("request", bounded_one(request)), ("response", bounded_one(response))]),
         service: ([], [("request_message", nested(request)), ("response_message", nested(response)), ("event_message", nested(event))]),
     }
 
 
+def build_typestore() -> Typestore:
+    """A new type store: Kilted's definitions, ServiceEventInfo corrected, std_srvs/srv/Empty added."""
+    definitions = dict(get_typestore(Stores.ROS2_KILTED).fielddefs)
+    constants, fields = definitions[SERVICE_EVENT_INFO]
+    uint8_gid = (Nodetype.ARRAY, ((Nodetype.BASE, ("uint8", 0)), 16))
+    definitions[SERVICE_EVENT_INFO] = (constants, [(name, uint8_gid if name == "client_gid" else desc) for name, desc in fields])
+    store = get_typestore(Stores.EMPTY)
+    store.register({name: value for name, value in definitions.items() if name not in store.fielddefs})
+    store.register(service_definitions(EMPTY_SERVICE, [], []))
+    return store
+
+
 @cache
 def typestore() -> Typestore:
-    """The shared type store (Kilted definitions plus std_srvs/srv/Empty)."""
-    store = get_typestore(Stores.ROS2_KILTED)
-    store.register(_service_definitions(EMPTY_SERVICE))
-    return store
+    """The shared type store (:func:`build_typestore`)."""
+    return build_typestore()
 
 
 def dds_type_name(ros_type: str) -> str:

@@ -91,10 +91,15 @@ class FilterRos2Bridge:
             )
         response = serialize(message_class(f"{EMPTY_SERVICE}_Response")(), f"{EMPTY_SERVICE}_Response")
 
-        def global_localization(key: str, payload: bytes, _request: Attachment | None) -> bytes:
-            arrive(False, "global_localization", key, (payload, None))
+        def global_localization(key: str, payload: bytes, _request: Attachment | None) -> bytes | None:
+            arrive(False, "global_localization", key, (payload, None))  # checked and counted on the filter thread
+            try:
+                check_key(key, config.domain_id, self.names["global_localization"], EMPTY_SERVICE)
+            except DecodeError:
+                return None
             return response
 
+        self.names["global_localization"] = self.node.resolve(config.global_localization_service)
         self.node.service(config.global_localization_service, EMPTY_SERVICE, global_localization)
 
     def close(self) -> None:
@@ -151,8 +156,9 @@ class FilterRos2Bridge:
             raise DecodeError("ros2_invalid", f"initial pose: {error}") from None
         return encode(command)
 
-    def global_localization(self, _key: str, _received: Received) -> bytes:
-        """The service was called: a locnerf GlobalLocalizationCommand."""
+    def global_localization(self, key: str, _received: Received) -> bytes:
+        """The service was called (on its key with the right type hash): a locnerf GlobalLocalizationCommand."""
+        check_key(key, self.config.domain_id, self.names["global_localization"], EMPTY_SERVICE)
         return encode(GlobalLocalizationCommand(stamp=self.loop.history.latest_stamp or 0.0))
 
     # ------------------------------------------------------------------ out (filter thread)

@@ -16,11 +16,11 @@ from collections.abc import Callable
 from locnerf.messages.codec import DecodeError
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import EntityKind, NodeIdentity, data_key, data_pattern, fully_qualified_name
-from locnerf.ros2.types import dds_type_name, serialize
+from locnerf.ros2.types import serialize
 from services.transport import Bus
 from services.transport.bus import AttachedCallback, Closeable, Reply
 
-ServiceHandler = Callable[[str, bytes, Attachment | None], bytes]
+ServiceHandler = Callable[[str, bytes, Attachment | None], bytes | None]
 
 
 def _gid(token: str) -> bytes:
@@ -88,9 +88,10 @@ class Ros2Node:
 
     def service(self, name: str, service_type: str, handler: ServiceHandler) -> str:
         """Serve ``name``: ``handler(key, request CDR, request attachment or None)`` returns the
-        response CDR; the reply's attachment carries the request's sequence number and GID, as
-        rmw_zenoh's service server does, so the client can match it. The queryable accepts any type
-        hash of the service type (see docs/ROS2.md). Returns the fully qualified name."""
+        response CDR (None: no reply); the reply's attachment carries the request's sequence number
+        and GID, as rmw_zenoh's service server does, so the client can match it. The queryable
+        matches any type name and hash so that the handler can count a mismatch. Returns the fully
+        qualified name."""
         fq_name = self.resolve(name)
         self._declare(EntityKind.SERVICE_SERVER, fq_name, service_type)
         own_gid = _gid(self.tokens[-1])
@@ -101,11 +102,12 @@ class Ros2Node:
             except DecodeError:
                 request = None
             response = handler(key, payload, request)
+            if response is None:
+                return []
             sequence, gid = (request.sequence_number, request.gid) if request is not None else (0, own_gid)
             return [(key, response, Attachment(sequence, _now_ns(), gid).encode())]
 
-        pattern = f"{self.identity.domain_id}/{fq_name.lstrip('/')}/{dds_type_name(service_type)}/*"
-        self.handles.append(self.bus.declare_queryable(pattern, answer))
+        self.handles.append(self.bus.declare_queryable(data_pattern(self.identity.domain_id, fq_name), answer))
         return fq_name
 
     def close(self) -> None:

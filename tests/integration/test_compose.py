@@ -61,3 +61,21 @@ def test_compose_services_start_locally_and_reach_each_other(hub, tmp_path):
         stack.start(name, *arguments, environment=environment)
     wait_for(lambda: observer.counter("updates_merged") >= 3 and len(observer.poses) >= 15, 180, "poses and merged updates", stack)
     assert (state_dir / "filter_state.json").is_file()
+
+
+def test_ros2_override_is_valid_and_runs_the_filter_with_ros2_and_no_synthetic_ingest():
+    from services.filter_loop.__main__ import FilterProcessConfig
+    from services.runtime import load_service_config
+
+    override = REPO / "deploy/compose.ros2.yml"
+    checker = Path(sys.executable).with_name("check-jsonschema")
+    result = subprocess.run(
+        [str(checker), "--builtin-schema", "vendor.compose-spec", str(override)], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    services = YAML(typ="safe").load(override.read_text())["services"]
+    assert services["ingest"]["profiles"] == ["synthetic"]
+    command = services["filter"]["command"]
+    config_path = REPO / "deploy/config" / Path(command[command.index("--config") + 1]).name
+    config = load_service_config(FilterProcessConfig, config_path, {})
+    assert config.ros2.enabled and config.ros2.sensors and config.ros2.pose_topic == "amcl_pose"

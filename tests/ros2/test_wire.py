@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import pytest
 from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.base import Nodetype
 from zenoh.ext import Int64, z_serialize
 
 from locnerf.messages.codec import DecodeError
 from locnerf.ros2.attachment import SIZE, Attachment
 from locnerf.ros2.naming import EntityKind, NodeIdentity, check_key, data_key, data_pattern, fully_qualified_name, mangle
-from locnerf.ros2.types import dds_type_name, deserialize, message_class, serialize, type_hash
+from locnerf.ros2.types import build_typestore, dds_type_name, deserialize, message_class, serialize, service_definitions, type_hash
 
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"  # design.md, chatter
 TYPES_USED = (
@@ -61,6 +62,9 @@ def test_check_key_names_the_mismatch():
     with pytest.raises(DecodeError) as error:
         check_key(data_key(0, "/odom", "std_msgs/msg/String"), 0, "/odom", "nav_msgs/msg/Odometry")
     assert error.value.kind == "ros2_type_name"
+    with pytest.raises(DecodeError) as error:
+        check_key(key, 1, "/odom", "nav_msgs/msg/Odometry")
+    assert error.value.kind == "ros2_key"
 
 
 def test_liveliness_tokens_match_the_design_document_examples():
@@ -103,7 +107,16 @@ def test_cdr_has_the_encapsulation_header_and_malformed_bytes_raise():
         assert error.value.kind == "ros2_cdr"
 
 
-def test_empty_service_types_are_registered():
+def test_service_hashes_follow_rosidl():
+    """Oracles from outside this code: ServiceEventInfo's hash from rosidl-generated C code
+    (``service_msgs__msg__ServiceEventInfo__EXPECTED_HASH``, first 27 bytes as printed there) and
+    rcl_interfaces/srv/GetParameterTypes's hash from ros-z's tests, which state it was verified
+    against rmw_zenoh_cpp. The same construction hashes std_srvs/srv/Empty."""
+    assert type_hash("service_msgs/msg/ServiceEventInfo").startswith("RIHS01_41bcbbe07a75c9b52bc96bfd5c24d7f0fc0a08c0cb7921b3373c57")
+    store = build_typestore()
+    sequence = lambda base: (Nodetype.SEQUENCE, ((Nodetype.BASE, (base, 0)), 0))  # noqa: E731
+    store.register(service_definitions("rcl_interfaces/srv/GetParameterTypes", [("names", sequence("string"))], [("types", sequence("uint8"))]))
+    assert store.hash_rihs01("rcl_interfaces/srv/GetParameterTypes") == "RIHS01_da199c878688b3e530bdfe3ca8f74cb9fa0c303101e980a9e8f260e25e1c80ca"
     response = serialize(message_class("std_srvs/srv/Empty_Response")(), "std_srvs/srv/Empty_Response")
     assert response == b"\x00\x01\x00\x00\x00"  # one uint8 structure_needs_at_least_one_member
     assert type_hash("std_srvs/srv/Empty").startswith("RIHS01_")

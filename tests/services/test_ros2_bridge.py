@@ -115,6 +115,10 @@ def test_the_service_reinitialises_and_replies_with_the_request_sequence_and_gid
     epoch = loop.localizer.epoch
     drain(driver)
     assert loop.running and loop.localizer.epoch == epoch + 1
+    # A request on another type hash: no reply, counted, no re-initialisation.
+    assert bus.query(key.rsplit("/", 1)[0] + "/RIHS01_" + "1" * 64, request, attachment=asked.encode()) == []
+    drain(driver)
+    assert loop.localizer.epoch == epoch + 1 and loop.counters()["bad_ros2_type_hash"] == 1
 
 
 def test_bad_ros_input_is_counted_and_dropped_and_the_filter_keeps_publishing():
