@@ -40,7 +40,7 @@ class Attachment:
         return _HEAD.pack(self.sequence_number, self.source_timestamp_ns, GID_SIZE) + self.gid
 
     @classmethod
-    def decode(cls, data: bytes | None) -> "Attachment":
+    def decode(cls, data: bytes | None) -> Attachment:
         """Parse attachment bytes.
 
         Raises:

@@ -10,6 +10,8 @@ covariance as ``(x, y, z, rotation about X, rotation about Y, rotation about Z)`
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import torch
@@ -28,8 +30,8 @@ COMPRESSED_FORMATS = ("jpeg", "png")
 # ---------------------------------------------------------------- time
 def time_message(stamp: float) -> object:
     """Seconds -> builtin_interfaces/msg/Time (sec, nanosec)."""
-    sec = int(np.floor(stamp))
-    nanosec = min(int(round((stamp - sec) * 1e9)), 999_999_999)
+    sec = math.floor(stamp)
+    nanosec = min(round((stamp - sec) * 1e9), 999_999_999)
     return message_class("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
 
 

@@ -31,8 +31,8 @@ def service_definitions(service: str, request_fields: list, response_fields: lis
     """rosbags definitions of a service ``pkg/srv/Name``: its request, response and event messages
     and the service itself, as rosidl's type description has them (fields in rosbags' form)."""
     request, response, event = f"{service}_Request", f"{service}_Response", f"{service}_Event"
-    nested = lambda name: (Nodetype.NAME, name)  # noqa: E731
-    bounded_one = lambda name: (Nodetype.SEQUENCE, ((Nodetype.NAME, name), 1))  # noqa: E731
+    nested = lambda name: (Nodetype.NAME, name)
+    bounded_one = lambda name: (Nodetype.SEQUENCE, ((Nodetype.NAME, name), 1))
     return {
         request: ([], request_fields),
         response: ([], response_fields),
@@ -97,5 +97,5 @@ def deserialize(payload: bytes, ros_type: str) -> object:
     """
     try:
         return typestore().deserialize_cdr(payload, ros_type)
-    except Exception as error:  # rosbags raises struct/index/value errors on truncated or foreign bytes
+    except Exception as error:  # noqa: BLE001 - rosbags' generated code runs on foreign bytes: nothing may escape to the filter thread
         raise DecodeError("ros2_cdr", f"{len(payload)} bytes are not a CDR {ros_type} ({type(error).__name__}: {error})") from None

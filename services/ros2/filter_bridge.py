@@ -16,14 +16,22 @@ counters (visible in FilterStatus).
 
 from __future__ import annotations
 
-import logging
+from collections.abc import Callable
 
+import numpy as np
 import torch
 
 from locnerf.geometry.se3 import pose_inverse
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, encode, encode_image
-from locnerf.messages.schemas import GlobalLocalizationCommand, ImageHeader, InitialPoseCommand, Odometry, PoseEstimate
+from locnerf.messages.schemas import (
+    GlobalLocalizationCommand,
+    ImageHeader,
+    InitialPoseCommand,
+    Odometry,
+    PoseEstimate,
+)
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import check_key
@@ -32,8 +40,6 @@ from services.filter_loop.service import FilterLoop
 from services.ros2.config import Ros2Config
 from services.ros2.node import Ros2Node
 from services.transport import Bus
-
-logger = logging.getLogger(__name__)
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 IMAGE = "sensor_msgs/msg/Image"
@@ -45,6 +51,8 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 # (payload, attachment) of a received ROS 2 sample
 Received = tuple[bytes, bytes | None]
+# arrive(urgent, kind, key, received): queue a message for the filter thread
+Arrive = Callable[[bool, str, str, Received], None]
 
 
 class FilterRos2Bridge:
@@ -62,7 +70,7 @@ class FilterRos2Bridge:
         self.node = Ros2Node(bus, config.domain_id, config.node_name, config.namespace)
         self.T_body_cam = loop.T_body_cam
         self.T_cam_body = pose_inverse(loop.T_body_cam)
-        self._camera: tuple | None = None  # (intrinsics, K, distortion) of the newest CameraInfo
+        self._camera: tuple[PinholeIntrinsics, np.ndarray, np.ndarray] | None = None  # (intrinsics, K (3, 3), distortion) of the newest CameraInfo
         self.pose_publisher = self.node.publisher(config.pose_topic, POSE_WITH_COVARIANCE)
         self.particles_publisher = self.node.publisher(config.particles_topic, POSE_ARRAY)
         self.tf_publisher = self.node.publisher(config.tf_topic, TF_MESSAGE) if config.publish_tf else None
@@ -70,7 +78,7 @@ class FilterRos2Bridge:
         self.image_type = IMAGE if config.image_transport == "raw" else COMPRESSED_IMAGE
 
     # ------------------------------------------------------------------ wiring
-    def subscribe(self, arrive, image_arrived) -> None:
+    def subscribe(self, arrive: Arrive, image_arrived: Callable[[str, Received], None]) -> None:
         """Declare the subscriptions and the service; callbacks only enqueue.
 
         Args:
@@ -116,6 +124,11 @@ class FilterRos2Bridge:
     def odometry(self, key: str, received: Received) -> bytes:
         """nav_msgs/Odometry -> locnerf Odometry payload (the body pose in the odometry frame)."""
         message = self._open("odometry", ODOMETRY, key, received)
+        frames = (message.header.frame_id.lstrip("/"), message.child_frame_id.lstrip("/"))
+        if frames != (self.config.odom_frame_id, self.config.base_frame_id):
+            raise DecodeError(
+                "ros2_frame", f"odometry of {frames[1]!r} in {frames[0]!r}, expected {self.config.base_frame_id!r} in {self.config.odom_frame_id!r}"
+            )
         pose = convert.pose_from_message(message.pose.pose)
         return encode(Odometry(stamp=convert.seconds(message.header.stamp), frame_id=self.config.odom_frame_id, T_odom_body=pose.tolist()))
 

@@ -15,7 +15,13 @@ from collections.abc import Callable
 
 from locnerf.messages.codec import DecodeError
 from locnerf.ros2.attachment import Attachment
-from locnerf.ros2.naming import EntityKind, NodeIdentity, data_key, data_pattern, fully_qualified_name
+from locnerf.ros2.naming import (
+    EntityKind,
+    NodeIdentity,
+    data_key,
+    data_pattern,
+    fully_qualified_name,
+)
 from locnerf.ros2.types import serialize
 from services.transport import Bus
 from services.transport.bus import AttachedCallback, Closeable, Reply

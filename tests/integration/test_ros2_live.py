@@ -21,7 +21,13 @@ from locnerf.geometry.so3 import so3_exp
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import EntityKind, data_key, fully_qualified_name
-from locnerf.ros2.types import dds_type_name, deserialize, message_class, serialize, type_hash
+from locnerf.ros2.types import (
+    dds_type_name,
+    deserialize,
+    message_class,
+    serialize,
+    type_hash,
+)
 from locnerf.sim.world import ProceduralWorld
 from services.ros2.node import Ros2Node
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent

@@ -12,6 +12,7 @@ import torch
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
 from locnerf.geometry.so3 import so3_exp
 from locnerf.messages.codec import DecodeError
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2.convert import (
     adjoint,
     covariance_from_ros,
@@ -25,6 +26,7 @@ from locnerf.ros2.convert import (
     time_message,
 )
 from locnerf.ros2.types import message_class
+from tests.ros2 import messages
 
 YAW_90 = make_pose(so3_exp(torch.tensor([0.0, 0.0, math.pi / 2], dtype=torch.float64)), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
 
@@ -118,16 +120,14 @@ def test_compressed_png_is_decoded_to_rgb_and_unknown_formats_raise():
 
 
 def test_camera_info_gives_intrinsics_and_rejects_a_zero_focal_length():
-    info = message_class("sensor_msgs/msg/CameraInfo")
-    fields = dict(
-        header=message_class("std_msgs/msg/Header")(stamp=time_message(0.0), frame_id="camera"),
-        height=48, width=64, distortion_model="plumb_bob", d=np.zeros(5), k=np.array([50.0, 0, 32, 0, 51, 24, 0, 0, 1]),
-        r=np.eye(3).reshape(-1), p=np.zeros(12), binning_x=0, binning_y=0,
-        roi=message_class("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
-    )
-    intrinsics, _, distortion = intrinsics_from_camera_info(info(**fields))
-    assert (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width) == (50.0, 51.0, 32.0, 24.0, 64) and not distortion.any()
-    fields["k"] = np.zeros(9)
+    info = messages.camera_info(0.0, PinholeIntrinsics(fx=50.0, fy=51.0, cx=32.0, cy=24.0, width=64, height=48))
+    intrinsics, k, distortion = intrinsics_from_camera_info(info)
+    assert (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width) == (50.0, 51.0, 32.0, 24.0, 64)
+    assert k[0, 0] == 50.0 and not distortion.any()
+    info.k = np.zeros(9)
     with pytest.raises(DecodeError) as error:
-        intrinsics_from_camera_info(info(**fields))
+        intrinsics_from_camera_info(info)
     assert error.value.kind == "ros2_camera_info"
+    info.k, info.distortion_model, info.d = np.eye(3).reshape(-1), "equidistant", np.ones(4)
+    with pytest.raises(DecodeError, match="equidistant"):
+        intrinsics_from_camera_info(info)

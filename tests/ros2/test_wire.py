@@ -13,8 +13,24 @@ from zenoh.ext import Int64, z_serialize
 
 from locnerf.messages.codec import DecodeError
 from locnerf.ros2.attachment import SIZE, Attachment
-from locnerf.ros2.naming import EntityKind, NodeIdentity, check_key, data_key, data_pattern, fully_qualified_name, mangle
-from locnerf.ros2.types import build_typestore, dds_type_name, deserialize, message_class, serialize, service_definitions, type_hash
+from locnerf.ros2.naming import (
+    EntityKind,
+    NodeIdentity,
+    check_key,
+    data_key,
+    data_pattern,
+    fully_qualified_name,
+    mangle,
+)
+from locnerf.ros2.types import (
+    build_typestore,
+    dds_type_name,
+    deserialize,
+    message_class,
+    serialize,
+    service_definitions,
+    type_hash,
+)
 
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"  # design.md, chatter
 TYPES_USED = (
@@ -116,7 +132,7 @@ def test_service_hashes_follow_rosidl():
     against rmw_zenoh_cpp. The same construction hashes std_srvs/srv/Empty."""
     assert type_hash("service_msgs/msg/ServiceEventInfo").startswith("RIHS01_41bcbbe07a75c9b52bc96bfd5c24d7f0fc0a08c0cb7921b3373c57")
     store = build_typestore()
-    sequence = lambda base: (Nodetype.SEQUENCE, ((Nodetype.BASE, (base, 0)), 0))  # noqa: E731
+    sequence = lambda base: (Nodetype.SEQUENCE, ((Nodetype.BASE, (base, 0)), 0))
     store.register(service_definitions("rcl_interfaces/srv/GetParameterTypes", [("names", sequence("string"))], [("types", sequence("uint8"))]))
     assert store.hash_rihs01("rcl_interfaces/srv/GetParameterTypes") == "RIHS01_da199c878688b3e530bdfe3ca8f74cb9fa0c303101e980a9e8f260e25e1c80ca"
     response = serialize(message_class("std_srvs/srv/Empty_Response")(), "std_srvs/srv/Empty_Response")

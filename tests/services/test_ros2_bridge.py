@@ -10,14 +10,20 @@ import torch
 from locnerf.config import preset
 from locnerf.filter.localizer import Localizer, SearchRegion
 from locnerf.geometry.se3 import make_pose
+from locnerf.geometry.so3 import so3_exp
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
 from locnerf.messages.schemas import PoseEstimate
-from locnerf.geometry.so3 import so3_exp
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import data_key
-from locnerf.ros2.types import deserialize, dds_type_name, message_class, serialize, type_hash
+from locnerf.ros2.types import (
+    dds_type_name,
+    deserialize,
+    message_class,
+    serialize,
+    type_hash,
+)
 from locnerf.sim.world import ProceduralWorld
 from services.filter_loop.driver import FilterDriver
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
@@ -130,6 +136,7 @@ def test_bad_ros_input_is_counted_and_dropped_and_the_filter_keeps_publishing():
     bus.publish(good.key, b"\x00\x01\x00\x00garbage", valid)  # malformed CDR
     bus.publish(wrong_hash, serialize(messages.odometry(1.1, torch.eye(4, dtype=torch.float64)), "nav_msgs/msg/Odometry"), valid)
     bus.publish(good.key, serialize(messages.odometry(1.2, torch.eye(4, dtype=torch.float64)), "nav_msgs/msg/Odometry"))  # no attachment
+    publishers["odom"].publish(messages.odometry(1.25, torch.eye(4, dtype=torch.float64), base_frame="imu_link"))
     intrinsics = world.default_intrinsics
     frame = np.zeros((intrinsics.height, intrinsics.width, 3), np.uint8)
     publishers["image"].publish(messages.image(1.0, frame))  # before any camera info
@@ -140,14 +147,14 @@ def test_bad_ros_input_is_counted_and_dropped_and_the_filter_keeps_publishing():
     publishers["image"].publish(odd)
     drain(driver)
     counts = driver.loop.counters()
-    for kind in ("ros2_cdr", "ros2_type_hash", "ros2_attachment", "ros2_no_camera_info", "ros2_encoding"):
+    for kind in ("ros2_cdr", "ros2_type_hash", "ros2_attachment", "ros2_frame", "ros2_no_camera_info", "ros2_encoding"):
         assert counts[f"bad_{kind}"] == 1, (kind, counts)
     publishers["initialpose"].publish(messages.initial_pose(1.3, torch.eye(4, dtype=torch.float64), np.eye(6).reshape(-1).tolist()))
     drain(driver)
     good.publish(messages.odometry(1.4, torch.eye(4, dtype=torch.float64)))
     drain(driver)
     assert loop.running and convert.seconds(received["pose"][-1][0].header.stamp) == 1.4
-    assert loop.counters()["bad_messages"] == 5
+    assert loop.counters()["bad_messages"] == 6
     publishers["image"].publish(messages.image(1.4, frame))
     driver._take_image()
-    assert loop._image is not None and loop.counters()["bad_messages"] == 5, "a good image after the bad ones is kept"
+    assert loop._image is not None and loop.counters()["bad_messages"] == 6, "a good image after the bad ones is kept"
