@@ -18,45 +18,36 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import numpy as np
 import torch
 
 from locnerf.geometry.se3 import pose_inverse
 from locnerf.messages import keys
-from locnerf.messages.codec import DecodeError, decode, encode, encode_image
+from locnerf.messages.codec import DecodeError, decode, encode
 from locnerf.messages.schemas import (
     GlobalLocalizationCommand,
-    ImageHeader,
     InitialPoseCommand,
-    Odometry,
     PoseEstimate,
 )
-from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import check_key
-from locnerf.ros2.types import EMPTY_SERVICE, deserialize, message_class, serialize
+from locnerf.ros2.types import EMPTY_SERVICE, message_class, serialize
 from services.filter_loop.service import FilterLoop
 from services.ros2.config import Ros2Config
 from services.ros2.node import Ros2Node
+from services.ros2.sensors import Arrive, Received, Ros2Sensors, open_sample
 from services.transport import Bus
 
-ODOMETRY = "nav_msgs/msg/Odometry"
-IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
-CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
-# (payload, attachment) of a received ROS 2 sample
-Received = tuple[bytes, bytes | None]
-# arrive(urgent, kind, key, received): queue a message for the filter thread
-Arrive = Callable[[bool, str, str, Received], None]
-
 
 class FilterRos2Bridge:
     """Translates between a :class:`FilterLoop` and ROS 2 topics on ``bus``.
+
+    ``odometry``, ``camera_info`` and ``image`` translate sensor samples (:class:`Ros2Sensors`),
+    ``initial_pose`` and ``global_localization`` the commands; the driver calls them by kind.
 
     Args:
         loop: the filter (its T_body_cam, odometry history, particles and bad-message counters).
@@ -70,12 +61,12 @@ class FilterRos2Bridge:
         self.node = Ros2Node(bus, config.domain_id, config.node_name, config.namespace)
         self.T_body_cam = loop.T_body_cam
         self.T_cam_body = pose_inverse(loop.T_body_cam)
-        self._camera: tuple[PinholeIntrinsics, np.ndarray, np.ndarray] | None = None  # (intrinsics, K (3, 3), distortion) of the newest CameraInfo
         self.pose_publisher = self.node.publisher(config.pose_topic, POSE_WITH_COVARIANCE)
         self.particles_publisher = self.node.publisher(config.particles_topic, POSE_ARRAY)
         self.tf_publisher = self.node.publisher(config.tf_topic, TF_MESSAGE) if config.publish_tf else None
+        self.sensors = Ros2Sensors(self.node, config)
+        self.odometry, self.camera_info, self.image = self.sensors.odometry, self.sensors.camera_info, self.sensors.image
         self.names: dict[str, str] = {}
-        self.image_type = IMAGE if config.image_transport == "raw" else COMPRESSED_IMAGE
 
     # ------------------------------------------------------------------ wiring
     def subscribe(self, arrive: Arrive, image_arrived: Callable[[str, Received], None]) -> None:
@@ -86,17 +77,11 @@ class FilterRos2Bridge:
             image_arrived: ``image_arrived(key, (payload, attachment))`` keeps the newest image.
         """
         config = self.config
-        wanted = {"initial_pose": (config.initial_pose_topic, POSE_WITH_COVARIANCE, False)}
+        self.names["initial_pose"] = self.node.subscription(
+            config.initial_pose_topic, POSE_WITH_COVARIANCE, lambda key, payload, attachment: arrive(False, "initial_pose", key, (payload, attachment))
+        )
         if config.sensors:
-            wanted |= {"odometry": (config.odometry_topic, ODOMETRY, True), "camera_info": (config.camera_info_topic, CAMERA_INFO, False)}
-        for kind, (topic, ros_type, urgent) in wanted.items():
-            self.names[kind] = self.node.subscription(
-                topic, ros_type, lambda key, payload, attachment, kind=kind, urgent=urgent: arrive(urgent, kind, key, (payload, attachment))
-            )
-        if config.sensors:
-            self.names["image"] = self.node.subscription(
-                config.image_topic, self.image_type, lambda key, payload, attachment: image_arrived(key, (payload, attachment))
-            )
+            self.sensors.subscribe(arrive, image_arrived)
         response = serialize(message_class(f"{EMPTY_SERVICE}_Response")(), f"{EMPTY_SERVICE}_Response")
 
         def global_localization(key: str, payload: bytes, _request: Attachment | None) -> bytes | None:
@@ -115,45 +100,9 @@ class FilterRos2Bridge:
         self.node.close()
 
     # ------------------------------------------------------------------ in (filter thread)
-    def _open(self, kind: str, ros_type: str, key: str, received: Received) -> object:
-        payload, attachment = received
-        check_key(key, self.config.domain_id, self.names[kind], ros_type)
-        Attachment.decode(attachment)
-        return deserialize(payload, ros_type)
-
-    def odometry(self, key: str, received: Received) -> bytes:
-        """nav_msgs/Odometry -> locnerf Odometry payload (the body pose in the odometry frame)."""
-        message = self._open("odometry", ODOMETRY, key, received)
-        frames = (message.header.frame_id.lstrip("/"), message.child_frame_id.lstrip("/"))
-        if frames != (self.config.odom_frame_id, self.config.base_frame_id):
-            raise DecodeError(
-                "ros2_frame", f"odometry of {frames[1]!r} in {frames[0]!r}, expected {self.config.base_frame_id!r} in {self.config.odom_frame_id!r}"
-            )
-        pose = convert.pose_from_message(message.pose.pose)
-        return encode(Odometry(stamp=convert.seconds(message.header.stamp), frame_id=self.config.odom_frame_id, T_odom_body=pose.tolist()))
-
-    def camera_info(self, key: str, received: Received) -> None:
-        """Keep the intrinsics and distortion for the following images (nothing to hand on)."""
-        self._camera = convert.intrinsics_from_camera_info(self._open("camera_info", CAMERA_INFO, key, received))
-
-    def image(self, key: str, received: Received) -> bytes:
-        """sensor_msgs/Image or CompressedImage -> a locnerf image frame (undistorted, RGB)."""
-        message = self._open("image", self.image_type, key, received)
-        if self._camera is None:
-            raise DecodeError("ros2_no_camera_info", f"image before any CameraInfo on {self.names.get('camera_info')}")
-        intrinsics, k, distortion = self._camera
-        pixels = convert.pixels_from_image(message) if self.image_type == IMAGE else convert.pixels_from_compressed(message)
-        if pixels.shape[:2] != (intrinsics.height, intrinsics.width):
-            raise DecodeError("ros2_image_size", f"image {pixels.shape[1]}×{pixels.shape[0]}, camera info {intrinsics.width}×{intrinsics.height}")
-        pixels = convert.undistort(pixels, k, distortion)
-        header = ImageHeader(
-            stamp=convert.seconds(message.header.stamp), frame_id=message.header.frame_id, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics
-        )
-        return encode_image(header, pixels)
-
     def initial_pose(self, key: str, received: Received) -> bytes:
         """PoseWithCovarianceStamped of the body in the map -> locnerf InitialPoseCommand of the camera."""
-        message = self._open("initial_pose", POSE_WITH_COVARIANCE, key, received)
+        message = open_sample(key, received, self.config.domain_id, self.names["initial_pose"], POSE_WITH_COVARIANCE)
         if message.header.frame_id.lstrip("/") != self.config.global_frame_id:
             raise DecodeError("ros2_frame", f"initial pose in frame {message.header.frame_id!r}, expected {self.config.global_frame_id!r}")
         T_map_base = convert.pose_from_message(message.pose.pose)

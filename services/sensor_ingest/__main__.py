@@ -21,12 +21,14 @@ from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus
 from locnerf.sim.world import ProceduralWorld
+from services.ros2.config import Ros2Config
 from services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, stop_on_signals
 from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
 from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
 from services.sensor_ingest.events import SensorEvent
 from services.sensor_ingest.prefetch import PrefetchedEvents
 from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
+from services.sensor_ingest.ros2_source import Ros2Ingest
 from services.sensor_ingest.service import Pacer, event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from services.transport import Bus, Inbox, TransportConfig, open_bus
@@ -40,16 +42,20 @@ class IngestConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     robot_id: str = Field("robot", description="Robot whose sensor keys are published.")
-    source: Literal["world", "replay", "euroc", "camera"] = Field(
+    source: Literal["world", "replay", "euroc", "camera", "ros2"] = Field(
         "world",
         description="Stream source: the procedural world along a trajectory, the replay of a posed image sequence, "
         "a EuRoC MAV folder (its stamps kept, odometry synthesised from its ground truth), "
-        "or a live camera / video file (images only; odometry comes from the robot on sensors/odom).",
+        "a live camera / video file (images only; odometry comes from the robot on sensors/odom), "
+        "or a ROS 2 robot's odometry and camera topics over rmw_zenoh (docs/ROS2.md).",
     )
     world: WorldSourceConfig = Field(default_factory=WorldSourceConfig, description="Rates, duration and noise of the world stream.")
     replay: ReplaySourceConfig = Field(default_factory=ReplaySourceConfig, description="Sequence, rates and noise of the replay.")
     euroc: EurocSourceConfig = Field(default_factory=EurocSourceConfig, description="EuRoC folder, camera, rates and noise.")
     camera: CameraSourceConfig = Field(default_factory=CameraSourceConfig, description="Capture device or video file and its calibration.")
+    ros2: Ros2Config = Field(
+        default_factory=Ros2Config, description="With source = 'ros2': domain, namespace, sensor topics and frames (enabled and the output fields are unused)."
+    )
     speed: float = Field(1.0, ge=0, description="Sensor seconds per wall second (0: as fast as possible).")
     seed: int = Field(0, description="Seed of the noise draws.")
     wait_for_workers: int = Field(
@@ -97,6 +103,8 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
     Raises:
         ValueError: a replay without a path, a camera without intrinsics or that cannot be opened.
     """
+    if config.source == "ros2":
+        raise ValueError("source = 'ros2' has no event stream: it relays the ROS 2 topics as they arrive (relay_ros2)")
     generator = torch.Generator().manual_seed(config.seed)
     if config.source == "world":
         return world_events(ProceduralWorld.default(), config.world, generator)
@@ -112,6 +120,18 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
     replay = config.replay
     sequence = read_dataset(replay.path, split=replay.split, downscale=replay.downscale, skip_missing=replay.skip_missing)
     return replay_events(sequence, config.replay, generator)
+
+
+def relay_ros2(bus: Bus, config: IngestConfig, stop: threading.Event) -> int:
+    """Republish the ROS 2 sensor topics until ``stop``; returns the number of messages sent."""
+    ingest = Ros2Ingest(bus, config.robot_id, config.ros2)
+    logger.info("ros2 ingest: node %s_ingest in domain %d", config.ros2.node_name, config.ros2.domain_id)
+    try:
+        while not stop.is_set():
+            ingest.step(timeout=0.05)
+    finally:
+        ingest.close()
+    return ingest.sent
 
 
 def stream(bus: Bus, config: IngestConfig, stop: threading.Event) -> int:
@@ -159,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
                 return 0
             logger.error("no filter with %d live worker(s) within %.0f s: not streaming", config.wait_for_workers, config.wait_timeout)
             return 1
-        sent = stream(bus, config, stop)
+        sent = relay_ros2(bus, config, stop) if config.source == "ros2" else stream(bus, config, stop)
         logger.info("ingest: %d events sent", sent)
     finally:
         bus.close()

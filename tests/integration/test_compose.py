@@ -66,6 +66,7 @@ def test_compose_services_start_locally_and_reach_each_other(hub, tmp_path):
 def test_ros2_override_is_valid_and_runs_the_filter_with_ros2_and_no_synthetic_ingest():
     from services.filter_loop.__main__ import FilterProcessConfig
     from services.runtime import load_service_config
+    from services.sensor_ingest.__main__ import IngestConfig
 
     override = REPO / "deploy/compose.ros2.yml"
     checker = Path(sys.executable).with_name("check-jsonschema")
@@ -79,3 +80,5 @@ def test_ros2_override_is_valid_and_runs_the_filter_with_ros2_and_no_synthetic_i
     config_path = REPO / "deploy/config" / Path(command[command.index("--config") + 1]).name
     config = load_service_config(FilterProcessConfig, config_path, {})
     assert config.ros2.enabled and config.ros2.sensors and config.ros2.pose_topic == "amcl_pose"
+    relay = load_service_config(IngestConfig, REPO / "deploy/config/ingest_ros2.toml", {})
+    assert relay.source == "ros2" and relay.ros2.odometry_topic == "odom"
