@@ -66,7 +66,8 @@ class FilterLoopConfig(BaseModel):
     T_body_cam: list[list[float]] = Field(
         default_factory=lambda: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
         description="4×4 pose of the camera (locnerf's OpenGL axes: x right, y up, z back) in the odometry's body frame, metres. "
-        "Odometry of the body is carried to the camera with it; ROS 2 outputs give the body pose. Identity: the body is the camera. "
+        "Odometry of the body is carried to the camera with it (the odometry history and the state file then hold the camera's "
+        "odometry pose T_odom_body · T_body_cam); ROS 2 outputs give the body pose. Identity: the body is the camera. "
         "From an OpenCV/ROS optical-frame extrinsic T_body_optical (e.g. EuRoC's T_BS) it is opencv_to_opengl(T_body_optical).",
     )
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from locnerf.config import preset
@@ -83,6 +84,8 @@ def test_initial_pose_odometry_and_outputs_follow_the_amcl_frames():
     publishers["odom"].publish(messages.odometry(10.0, T_odom_base))
     drain(driver)
     assert loop.running and loop.bad.total == 0
+    # The filter moves the camera: its odometry pose is the body's carried by T_body_cam.
+    assert torch.allclose(loop.history.latest_pose, T_odom_base @ T_BODY_CAM, atol=1e-12)
     message, attachment = received["pose"][-1]
     assert message.header.frame_id == "map" and convert.seconds(message.header.stamp) == 10.0 and attachment.sequence_number == 1
     published = convert.pose_from_message(message.pose.pose)
@@ -158,3 +161,10 @@ def test_bad_ros_input_is_counted_and_dropped_and_the_filter_keeps_publishing():
     publishers["image"].publish(messages.image(1.4, frame))
     driver._take_image()
     assert loop._image is not None and loop.counters()["bad_messages"] == 6, "a good image after the bad ones is kept"
+
+
+def test_t_body_cam_must_be_a_rigid_transform():
+    with pytest.raises(ValueError, match="T_body_cam"):
+        FilterLoopConfig(T_body_cam=(2 * torch.eye(4, dtype=torch.float64)).tolist())
+    with pytest.raises(ValueError, match="4×4"):
+        FilterLoopConfig(T_body_cam=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
