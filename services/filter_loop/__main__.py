@@ -70,6 +70,7 @@ def serve(loop: FilterLoop, bus: Bus, stop: threading.Event) -> None:
     finally:
         for handle in handles:
             handle.close()
+        loop.close()
         logger.info("%s", driver.timings.summary())
 
 

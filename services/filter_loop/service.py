@@ -39,7 +39,8 @@ from locnerf.messages.schemas import (
 from services.filter_loop.dispatcher import UpdateDispatcher
 from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
 from services.filter_loop.odometry_history import OdometryHistory
-from services.filter_loop.state_file import SavedPose, load_pose, save_pose
+from services.filter_loop.state_file import SavedPose, load_pose
+from services.filter_loop.state_writer import StateWriter
 from services.runtime import BadMessages, RateMeter
 
 logger = logging.getLogger(__name__)
@@ -63,6 +64,9 @@ class FilterLoopConfig(BaseModel):
     particles_rate: float = Field(2.0, gt=0, description="Particle clouds published per second.")
     status_rate: float = Field(1.0, gt=0, description="Status messages published per second.")
     state_file: str = Field("", description="File where the last pose is saved and resumed from on restart (empty: none).")
+    state_save_rate: float = Field(
+        1.0, gt=0, description="Saves of the state file per second at most (a writer thread does them, off the pose path)."
+    )
 
 
 class FilterLoop:
@@ -103,6 +107,7 @@ class FilterLoop:
         self._image: tuple[ImageHeader, np.ndarray] | None = None
         self._last_particles = self._last_status = -float("inf")
         self._state_file = Path(config.state_file) if config.state_file else None
+        self._state_writer = StateWriter(self._state_file, config.state_save_rate) if self._state_file else None
         self._estimate: FilterEstimate | None = None
         self._estimate_stale = False
         self._pending_increment: torch.Tensor | None = None
@@ -202,8 +207,8 @@ class FilterLoop:
         pose = map_to_metric(estimate.pose, self.normalization)
         covariance = convert_covariance(estimate.covariance, self.normalization, to_map=False)
         covariance = 0.5 * (covariance + covariance.T)
-        if self._state_file is not None:
-            save_pose(self._state_file, SavedPose(stamp, pose, covariance, self.history.latest_pose))
+        if self._state_writer is not None:  # fresh tensors: the writer thread never sees the filter's own
+            self._state_writer.offer(SavedPose(stamp, pose.clone(), covariance.clone(), self.history.latest_pose.clone()))
         self.rates["pose"].tick()
         message = PoseEstimate(
             stamp=stamp,
@@ -302,6 +307,11 @@ class FilterLoop:
     def _requests(self, outgoing: list) -> Outgoing:
         return [(self._key(keys.UPDATE_REQUEST, worker_id=worker), encode(request)) for worker, request in outgoing]
 
+    def close(self) -> None:
+        """Stop the state writer after writing the last pose (if a state file is configured)."""
+        if self._state_writer is not None:
+            self._state_writer.close()
+
     # ------------------------------------------------------------------ periodic work
     def tick(self) -> Outgoing:
         """Expire or start an update; publish particles and status when due."""
@@ -356,6 +366,7 @@ class FilterLoop:
             "images_replaced": self.images_replaced + self.images_replaced_upstream,
             "bad_messages": self.bad.total,
             "odometry_restarts": self.odometry_restarts,
+            "state_save_failures": self._state_writer.failures if self._state_writer else 0,
         }
         counts |= dict(self.dispatcher.counters)
         counts |= {f"bad_{kind}": count for kind, count in self.bad.counts.items()}
