@@ -36,7 +36,7 @@ from locnerf.messages.schemas import (
     PoseEstimate,
     UpdateResult,
 )
-from services.filter_loop.dispatcher import UpdateDispatcher
+from services.filter_loop.dispatcher import UnknownRequestError, UpdateDispatcher
 from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.state_file import SavedPose, load_pose
@@ -64,6 +64,9 @@ class FilterLoopConfig(BaseModel):
     particles_rate: float = Field(2.0, gt=0, description="Particle clouds published per second.")
     status_rate: float = Field(1.0, gt=0, description="Status messages published per second.")
     state_file: str = Field("", description="File where the last pose is saved and resumed from on restart (empty: none).")
+    max_image_pixels: int = Field(
+        4096 * 4096, gt=0, description="Images whose header declares more pixels than this are dropped unread (bad_image_too_large)."
+    )
     state_save_rate: float = Field(
         1.0, gt=0, description="Saves of the state file per second at most (a writer thread does them, off the pose path)."
     )
@@ -103,6 +106,7 @@ class FilterLoop:
         self.latencies: collections.deque[float] = collections.deque(maxlen=20)
         self.images_replaced = 0
         self.images_replaced_upstream = 0
+        self.inbox_dropped = 0
         self.odometry_restarts = 0
         self._image: tuple[ImageHeader, np.ndarray] | None = None
         self._last_particles = self._last_status = -float("inf")
@@ -225,7 +229,7 @@ class FilterLoop:
     def handle_image(self, payload: bytes) -> Outgoing:
         """Keep the newest valid image for the next update."""
         try:
-            header, pixels = decode_image(payload)
+            header, pixels = decode_image(payload, self.config.max_image_pixels)
         except DecodeError as error:
             self.bad.record(error.kind, error.reason)
             return []
@@ -246,6 +250,9 @@ class FilterLoop:
             completed = self.dispatcher.receive(decode(payload, UpdateResult), self.clock())
         except DecodeError as error:
             self.bad.record(error.kind, error.reason)
+            return []
+        except UnknownRequestError as error:
+            self.bad.record("unknown_request", str(error))
             return []
         except ValueError as error:
             self.bad.record("result_mismatch", str(error))
@@ -366,6 +373,7 @@ class FilterLoop:
             "images_replaced": self.images_replaced + self.images_replaced_upstream,
             "bad_messages": self.bad.total,
             "odometry_restarts": self.odometry_restarts,
+            "inbox_dropped": self.inbox_dropped,
             "state_save_failures": self._state_writer.failures if self._state_writer else 0,
         }
         counts |= dict(self.dispatcher.counters)
