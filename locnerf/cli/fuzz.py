@@ -178,6 +178,7 @@ def compare_counts(target: FuzzTarget, sent: collections.Counter[tuple[str, str]
         "expected_by_counter": dict(expected),
         "counted_by_counter": {name: bad.get(name, 0) for name in sorted(set(expected) | set(bad))},
         "unexpected_counters": unexpected,
+        "other_counter_changes": {name: n for name, n in sorted(delta.items()) if n and not name.startswith("bad_")},
         "accepted": accepted,
         "agree": agree,
     }
@@ -188,8 +189,8 @@ def _write_configs(folder: Path, robot: str) -> dict[str, Path]:
     texts = {
         "filter": f'robot_id = "{robot}"\nmap = "world"\ndevice = "cpu"\n',
         "worker": f'robot_id = "{robot}"\nmap = "world"\ndevice = "cpu"\nworker_id = "fuzzed"\n',
-        # Odometry only: no image of the stream competes with the hostile ones.
-        "ingest": f'robot_id = "{robot}"\ningest_id = "stream"\n[world]\ncamera_rate = 0.0001\nduration = 86400.0\n',
+        # Odometry only (int(duration · camera_rate) = 0 frames): no image of the stream competes with the hostile ones.
+        "ingest": f'robot_id = "{robot}"\ningest_id = "stream"\n[world]\ncamera_rate = 1e-9\nduration = 86400.0\n',
         "ingest_waiting": f'robot_id = "{robot}"\ningest_id = "{WAITING_INGEST}"\nwait_for_workers = 1000\nwait_timeout = 86400.0\n',
     }
     paths = {}
@@ -242,7 +243,7 @@ def run_fuzz(args: argparse.Namespace) -> dict[str, object]:
     paths = _write_configs(folder, robot)
     module = transport()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = module.open_bus(module.TransportConfig(listen=(endpoint,)))
+    bus = module.open_bus(module.TransportConfig(listen=(endpoint,), block_when_congested=True))
     environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
     observations = Observations()
     handles = [

@@ -96,6 +96,7 @@ class FilterDriver:
     def _take_image(self) -> Outgoing:
         image = self.images.take()
         self.loop.images_replaced_upstream = self.images.replaced
+        self.loop.images_received = self.images.received
         self.loop.inbox_dropped = self.inbox.dropped
         return self.loop.handle_image(image) if image is not None else []
 

@@ -106,6 +106,7 @@ class FilterLoop:
         self.latencies: collections.deque[float] = collections.deque(maxlen=20)
         self.images_replaced = 0
         self.images_replaced_upstream = 0
+        self.images_received = 0
         self.inbox_dropped = 0
         self.odometry_restarts = 0
         self._image: tuple[ImageHeader, np.ndarray] | None = None
@@ -374,6 +375,7 @@ class FilterLoop:
             "bad_messages": self.bad.total,
             "odometry_restarts": self.odometry_restarts,
             "inbox_dropped": self.inbox_dropped,
+            "images_received": self.images_received,
             "state_save_failures": self._state_writer.failures if self._state_writer else 0,
         }
         counts |= dict(self.dispatcher.counters)
