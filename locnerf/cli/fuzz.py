@@ -88,7 +88,7 @@ class Observations:
             self.poses.append((time.monotonic(), stamp))
 
     def counters(self, service: str) -> dict[str, int]:
-        """The latest counters of ``filter``, ``worker`` or the waiting ``ingest``."""
+        """The latest counters of ``filter``, ``worker`` or the waiting ``ingest`` (empty before its first status)."""
         with self.lock:
             if service == "filter":
                 return dict(self.filter)
@@ -200,12 +200,17 @@ def _write_configs(folder: Path, robot: str) -> dict[str, Path]:
     return paths
 
 
+def _check_alive(processes: dict[str, subprocess.Popen], folder: Path) -> None:
+    """Raise RuntimeError naming the services that exited."""
+    dead = [name for name, p in processes.items() if p.poll() is not None]
+    if dead:
+        raise RuntimeError(f"service(s) {dead} exited: see the logs in {folder}")
+
+
 def _wait(condition, timeout: float, what: str, processes: dict[str, subprocess.Popen], folder: Path) -> None:
     deadline = time.monotonic() + timeout
     while not condition():
-        dead = [name for name, p in processes.items() if p.poll() is not None]
-        if dead:
-            raise RuntimeError(f"service(s) {dead} exited: see the logs in {folder}")
+        _check_alive(processes, folder)
         if time.monotonic() > deadline:
             raise RuntimeError(f"timed out after {timeout:.0f} s waiting for {what}: see the logs in {folder}")
         time.sleep(0.1)
@@ -224,7 +229,7 @@ def _settle(observations: Observations, target: FuzzTarget, total: int, before: 
             last, unchanged_since = counters, time.monotonic()
         elif time.monotonic() - unchanged_since > 2.5:
             return counters
-        _wait(lambda: True, 0, "", processes, folder)
+        _check_alive(processes, folder)
         time.sleep(0.2)
     return observations.counters(target.service)
 

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 from pydantic import BaseModel
 
 from locnerf.messages import keys
-from locnerf.messages.codec import SCHEMA_VERSION, DecodeError, decode, decode_image, encode_image
+from locnerf.messages.codec import SCHEMA_VERSION, DecodeError, decode, decode_image
 from locnerf.messages.schemas import (
     MAX_ABS_STAMP,
     WIRE_TYPES,
