@@ -234,6 +234,24 @@ def test_initial_pose_command_and_restart_from_the_saved_state(world, generator,
     assert restarted.poses[-1].spread < 0.2
 
 
+def test_results_with_other_ids_unknown_or_late_requests_are_told_apart(world, generator):
+    harness = Harness(world)
+    harness.add_worker("w1")
+    eye = torch.eye(4, dtype=torch.float64)
+    harness.collect(harness.loop.handle_odometry(_odometry(0.0, eye)))
+    harness.collect(harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator))))
+    harness.tick()
+    (_worker, request), = harness.requests
+    result = NerfWorker(world, "w1").handle(request)
+    harness.loop.handle_result(encode(result.model_copy(update={"ids": [i + 1 for i in result.ids]})))
+    harness.loop.handle_result(encode(result.model_copy(update={"request_id": "never-issued"})))
+    harness.answer(request)  # completes the update
+    harness.answer(request)  # the same result again: late, not bad
+    counters = harness.loop.counters()
+    assert counters["bad_result_mismatch"] == 1 and counters["bad_unknown_request"] == 1
+    assert counters["late_results"] == 1 and counters["updates_merged"] == 1
+
+
 def test_unwritable_state_file_is_counted_and_the_poses_go_on(world, tmp_path):
     """A state file in a missing folder: every save fails, is counted, and no pose is lost."""
     config = FilterLoopConfig(state_file=str(tmp_path / "missing" / "filter_state.json"), state_save_rate=1000.0)
