@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import collections
 import logging
+import os
 import signal
+import socket
 import sys
 import threading
 import time
@@ -13,6 +15,9 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
+
+from locnerf.messages.codec import encode
+from locnerf.messages.schemas import ServiceStatus
 
 ConfigModel = TypeVar("ConfigModel", bound=BaseModel)
 
@@ -36,6 +41,46 @@ class BadMessages:
     def total(self) -> int:
         """All bad messages so far."""
         return sum(self.counts.values())
+
+
+def default_instance_id() -> str:
+    """``<hostname>-<pid>`` with key-expression-safe characters (a worker's or ingest's default name)."""
+    host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname())
+    return f"{host}-{os.getpid()}"
+
+
+class StatusPublisher:
+    """Publishes a worker's or ingest's :class:`ServiceStatus` on ``key`` every ``period`` seconds.
+
+    The counters are those of ``bad`` (``bad_<kind>`` and ``bad_messages``, as in FilterStatus)
+    plus the ones passed to :meth:`publish_if_due`.
+
+    Args:
+        publish: sends (key, payload), e.g. a bus's ``publish``.
+        key: the status key.
+        service, instance: who reports.
+        bad: the process's bad-message counts.
+        period: seconds between two statuses.
+        clock: monotonic seconds.
+    """
+
+    def __init__(self, publish, key: str, service: str, instance: str, bad: BadMessages, period: float = 1.0, clock=time.monotonic) -> None:
+        self._publish = publish
+        self.key, self.service, self.instance, self.bad = key, service, instance, bad
+        self.period, self.clock = period, clock
+        self._last = -float("inf")
+
+    def status(self, counters: dict[str, int]) -> ServiceStatus:
+        """The status with ``counters`` and the bad-message counts."""
+        every = dict(counters) | {"bad_messages": self.bad.total} | {f"bad_{kind}": n for kind, n in self.bad.counts.items()}
+        return ServiceStatus(stamp=time.time(), service=self.service, instance=self.instance, counters=every)
+
+    def publish_if_due(self, counters: dict[str, int], force: bool = False) -> None:
+        """Publish the status if ``period`` has passed since the last one (or ``force``)."""
+        now = self.clock()
+        if force or now - self._last >= self.period:
+            self._last = now
+            self._publish(self.key, encode(self.status(counters)))
 
 
 class RateMeter:

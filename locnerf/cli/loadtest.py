@@ -6,7 +6,8 @@ is still the procedural world, so accuracy means nothing there, only load), wait
 pose and ``--warmup`` seconds, then observes the bus for ``--duration`` seconds and reports rates,
 latencies, jitter, dropped frames vs lost messages and CPU/memory per process (JSON with
 ``--json``, else a table). Comma-separated ``--particles``, ``--pixels`` or ``--workers`` make a
-sweep: one run per combination, a CSV and a PNG in ``--out``.
+sweep: one run per combination, a CSV and a PNG in ``--out``. ``--overload F`` sends odometry and
+images F times faster than their rates (the held-load test of docs/RELIABILITY.md).
 """
 
 from __future__ import annotations
@@ -57,6 +58,34 @@ class LoadCaseConfig(BaseModel):
         description="The ingest renders the whole synthetic stream before releasing it (IngestConfig.prefill), so "
         "the frame rendering of the test's camera does not load the machine under test; false renders while streaming.",
     )
+    overload: float = Field(
+        1.0,
+        ge=1.0,
+        description="Input faster than processing: odometry and camera rates are multiplied by this. Above 1 the ingest "
+        "renders only OVERLOAD_FRAMES frames and sends them again in turn (no prerendering), and the observer leaves the "
+        "images alone (the filter's status counts them) and decodes the rest during the window, so that a long run "
+        "holds no queue of its own.",
+    )
+    memory_period: float = Field(5.0, gt=0, description="Seconds between two readings of every process's resident memory.")
+
+    @property
+    def input_odometry_rate(self) -> float:
+        """Odometry messages per second actually sent."""
+        return self.odometry_rate * self.overload
+
+    @property
+    def input_camera_rate(self) -> float:
+        """Camera frames per second actually sent."""
+        return self.camera_rate * self.overload
+
+    @property
+    def overloaded(self) -> bool:
+        """Whether this is a held-load run."""
+        return self.overload > 1.0
+
+
+OVERLOAD_FRAMES = 30
+"""Distinct frames of an overloaded stream (two seconds of the default camera)."""
 
 
 # Seconds of stream after the measurement window's settle time: the ingest starts streaming once
@@ -70,12 +99,14 @@ def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
     folder.mkdir(parents=True, exist_ok=True)
     stream_seconds = case.warmup + case.duration + case.settle + _STREAM_MARGIN_S
     # World stream events: a ground truth and an odometry message per odometry stamp, an image per frame.
-    events = math.ceil(stream_seconds * (2 * case.odometry_rate + case.camera_rate)) + 8
-    prefetch = f"prefetch_events = {events}\nprefill = true\n" if case.prerender else ""
+    events = math.ceil(stream_seconds * (2 * case.input_odometry_rate + case.input_camera_rate)) + 8
+    prefetch = f"prefetch_events = {events}\nprefill = true\n" if case.prerender and not case.overloaded else ""
+    reuse = f"distinct_frames = {OVERLOAD_FRAMES}\n" if case.overloaded else ""
     files = {
         "localizer": f'preset = "llff"\nparticles = {case.particles}\n\n[measurement]\npixels = {case.pixels}\n\n'
         f"[annealing]\nreduced_particles = {case.particles}\n",
-        "ingest": f'source = "world"\n{prefetch}\n[world]\nodometry_rate = {case.odometry_rate}\ncamera_rate = {case.camera_rate}\n',
+        "ingest": f'source = "world"\n{prefetch}\n[world]\nodometry_rate = {case.input_odometry_rate}\n'
+        f"camera_rate = {case.input_camera_rate}\n{reuse}",
         "filter": f"map = {json.dumps(case.map)}\n",
         "worker": f"map = {json.dumps(case.map)}\n",
     }
@@ -91,6 +122,18 @@ def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
 
 def _sample_all(processes: dict[str, int]) -> dict[str, ProcessSample]:
     return {name: read_process_sample(pid) for name, pid in processes.items()}
+
+
+def memory_over_time(samples: list[dict[str, ProcessSample]]) -> dict[str, dict[str, float]]:
+    """Per process: resident memory at the first and last reading, its maximum over all readings, MB."""
+    return {
+        name: {
+            "rss_start_mb": round(samples[0][name].rss_mb, 1),
+            "rss_max_mb": round(max(sample[name].rss_mb for sample in samples), 1),
+            "rss_end_mb": round(samples[-1][name].rss_mb, 1),
+        }
+        for name in samples[0]
+    }
 
 
 def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
@@ -113,8 +156,10 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
         "pose": keys.key(case.robot_id, keys.POSE),
         "status": keys.key(case.robot_id, keys.STATUS),
     }
+    if case.overloaded:
+        del topics["image"]
     handles = [bus.subscribe(t, lambda _k, p, kind=kind: inbox.put((kind, p, time.monotonic()))) for kind, t in topics.items()]
-    recorder = LoadRecorder(odometry_rate=case.odometry_rate, camera_rate=case.camera_rate)
+    recorder = LoadRecorder(odometry_rate=case.input_odometry_rate, camera_rate=case.input_camera_rate)
     processes: dict[str, subprocess.Popen] = {}
     namespace = _write_configs(case, folder)
 
@@ -136,12 +181,20 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
                 observe(item)
             check_processes()
 
+    memory: list[dict[str, ProcessSample]] = []
+
     def wait_until(deadline: float) -> None:
         # Arrivals are stamped in the callbacks and stay queued: decoding them now would take CPU
-        # and the GIL from the callbacks and the services while they are being measured.
+        # and the GIL from the callbacks and the services while they are being measured. A held-load
+        # run decodes as it goes instead (its queue would grow for the whole run).
         while time.monotonic() < deadline:
-            time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
+            if case.overloaded:
+                drain_until(min(deadline, time.monotonic() + 0.1))
+            else:
+                time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
             check_processes()
+            if memory and time.monotonic() - next(iter(memory[-1].values())).at >= case.memory_period:
+                memory.append(_sample_all(pids))
 
     try:
         for name, command in service_commands(namespace).items():
@@ -155,8 +208,11 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
         wait_until(time.monotonic() + case.warmup)
         pids = {name: p.pid for name, p in processes.items()} | {"loadtest": os.getpid()}
         start, before = time.monotonic(), _sample_all(pids)
+        memory.append(before)
         wait_until(start + case.duration)
         end, after = time.monotonic(), _sample_all(pids)
+        memory.append(after)
+        window_memory = list(memory)
         wait_until(end + case.settle)
     finally:
         stop_processes(processes)
@@ -166,9 +222,10 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
     while (item := inbox.get(timeout=0.0)) is not None:
         observe(item)
     report = recorder.report(start, end, observer_drops=inbox.dropped)
-    case_fields = case.model_dump(include={"particles", "pixels", "workers", "camera_rate", "odometry_rate", "map", "device"})
+    case_fields = case.model_dump(include={"particles", "pixels", "workers", "camera_rate", "odometry_rate", "overload", "map", "device"})
+    usage = memory_over_time(window_memory)
     return case_fields | {"rays": case.particles * case.pixels} | report | {
-        "processes": {name: process_usage(before[name], after[name]) for name in pids}
+        "processes": {name: process_usage(before[name], after[name]) | usage[name] for name in pids}
     }
 
 
@@ -179,7 +236,9 @@ TABLE_ROWS = (
     ("pose jitter p50", "pose_jitter_p50_ms", "ms"), ("pose jitter p99", "pose_jitter_p99_ms", "ms"),
     ("odometry jitter p99 (source)", "odometry_jitter_p99_ms", "ms"),
     ("odometry -> pose p50", "end_to_end_latency_p50_ms", "ms"), ("odometry -> pose p99", "end_to_end_latency_p99_ms", "ms"),
-    ("camera frames", "camera_frames", ""), ("dropped frames (newest-only)", "dropped_frames", ""), ("lost messages", "lost_messages", ""),
+    ("camera frames", "camera_frames", ""), ("dropped frames (newest-only)", "dropped_frames", ""),
+    ("images replaced (filter status)", "images_replaced", ""), ("odometry messages", "odometry_messages", ""),
+    ("lost messages", "lost_messages", ""),
 )
 
 
@@ -187,9 +246,11 @@ def format_table(report: dict[str, object]) -> str:
     """The readable form of one report."""
     title = f"{report['particles']} particles x {report['pixels']} pixels, {report['workers']} worker(s), map {report['map']}, {report['window_s']} s"
     lines = [title] + [f"  {label:<30} {report[key]!s:>10} {unit}" for label, key, unit in TABLE_ROWS]
-    lines.append(f"  {'process':<12} {'cpu %':>7} {'rss MB':>8} {'peak MB':>8} {'threads':>7}")
-    for name, usage in report["processes"].items():
-        lines.append(f"  {name:<12} {usage['cpu_percent']:>7} {usage['rss_mb']:>8} {usage['peak_rss_mb']:>8} {usage['threads']:>7}")
+    lines.append(f"  {'process':<12} {'cpu %':>7} {'rss start':>9} {'rss max':>8} {'rss end':>8} {'peak MB':>8} {'threads':>7}")
+    for name, u in report["processes"].items():
+        lines.append(
+            f"  {name:<12} {u['cpu_percent']:>7} {u['rss_start_mb']:>9} {u['rss_max_mb']:>8} {u['rss_end_mb']:>8} {u['peak_rss_mb']:>8} {u['threads']:>7}"
+        )
     return "\n".join(lines)
 
 
@@ -216,6 +277,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--render-live", action="store_true", help="render the synthetic stream while streaming (default: before, see prerender)")
+    parser.add_argument("--overload", type=float, default=1.0, help="send odometry and images this many times faster (held load, e.g. 10)")
+    parser.add_argument("--memory-period", type=float, default=5.0, help="seconds between two readings of every process's memory")
     parser.add_argument("--out", type=Path, default=Path("out/loadtest"), help="folder for logs, configs and the sweep's CSV/PNG")
     parser.add_argument("--json", action="store_true", help="print JSON only (a list for a sweep)")
     parser.set_defaults(func=run)
@@ -228,6 +291,7 @@ def run(args: argparse.Namespace) -> int:
         case = LoadCaseConfig(
             particles=particles, pixels=pixels, workers=workers, camera_rate=args.camera_rate, odometry_rate=args.odometry_rate,
             duration=args.duration, warmup=args.warmup, map=args.map, device=args.device, seed=args.seed, prerender=not args.render_live,
+            overload=args.overload, memory_period=args.memory_period,
         )
         report = run_case(case, args.out / f"w{workers}_p{particles}_m{pixels}")
         reports.append(report)

@@ -23,7 +23,8 @@ an abandoned shard without an answer is already a lost result, and one answered 
 source already has (its pacing on a busy machine) is told apart from jitter the filter adds.
 
 Frames the filter skips because a newer one arrived (newest-only, by design) are ``dropped_frames``:
-images of the window minus updates started in the window.
+images of the window minus updates started in the window; ``images_replaced`` is the filter's own
+count of them (its status counter over the window), which needs no image observed.
 """
 
 from __future__ import annotations
@@ -170,6 +171,8 @@ class LoadRecorder:
             "dropped_frames": max(0, len(images_in) - len(started)),
             "lost_messages": sum(lost.values()),
             "lost_detail": lost,
+            "odometry_messages": len(odometry_in),
+            "images_replaced": self._status_delta("images_replaced", start, end),
             "updates_timed_out": self._status_delta("updates_timed_out", start, end),
             "stale_results": self._status_delta("stale_results", start, end),
         }

@@ -1,9 +1,23 @@
-"""The map file: one ``torch.save`` archive holding backend kind, format version, weights and MapInfo.
+"""The map file: a fixed header with a SHA-256 of the payload, then one ``torch.save`` archive.
 
-Layout (a dict, loaded with ``weights_only=True`` so a map file cannot run code)::
+A map file is untrusted input (it may come from anywhere): loading never runs code and refuses,
+naming the reason, anything that is not an intact map of a version this locnerf reads.
 
-    {"format": "locnerf-map", "version": 1, "kind": "grid" | "nerf_pytorch",
-     "info": MapInfo.to_record(), "state": backend-specific weights and shapes}
+Version 2 layout (big-endian)::
+
+    offset  0  8 bytes   magic b"LOCNMAP\x00"
+    offset  8  u32       format version (2)
+    offset 12  u64       payload length, bytes
+    offset 20  32 bytes  SHA-256 of the payload
+    offset 52  payload   torch.save archive (a dict, loaded with ``weights_only=True``):
+                         {"format": "locnerf-map", "version": 2, "kind": "grid" | "nerf_pytorch",
+                          "info": MapInfo.to_record(), "state": backend-specific weights and shapes}
+
+The checksum is verified before the archive is unpickled, so a damaged or edited payload is
+refused before torch sees it. Version-1 files (the bare archive, no header) are still read; they
+carry no checksum, so loading one logs a warning. ``weights_only=True`` refuses any pickled object
+other than tensors and plain containers, whatever the version; torch's own message (which
+suggests turning that protection off) is not passed on.
 
 Saving writes a temporary file beside the target and renames it into place, so an interrupted
 save never leaves a half-written map under the target name.
@@ -11,8 +25,14 @@ save never leaves a half-written map under the target name.
 
 from __future__ import annotations
 
+import hashlib
+import io
+import logging
 import os
+import pickle
+import struct
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -22,8 +42,12 @@ from locnerf.field.grid_map import GRID_KIND, GridMap
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import NERF_PYTORCH_KIND, NerfPytorchMap
 
+logger = logging.getLogger(__name__)
+
 FORMAT_NAME = "locnerf-map"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+MAGIC = b"LOCNMAP\x00"
+HEADER = struct.Struct(">8sIQ32s")
 BACKENDS = {GRID_KIND: GridMap, NERF_PYTORCH_KIND: NerfPytorchMap}
 
 
@@ -51,10 +75,14 @@ def save_map(radiance_map: SavableMap, path: str | Path) -> Path:
         "info": radiance_map.info.to_record(),
         "state": radiance_map.state(),
     }
+    buffer = io.BytesIO()
+    torch.save(archive, buffer)
+    payload = buffer.getvalue()
     handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
     try:
         with os.fdopen(handle, "wb") as stream:
-            torch.save(archive, stream)
+            stream.write(HEADER.pack(MAGIC, FORMAT_VERSION, len(payload), hashlib.sha256(payload).digest()))
+            stream.write(payload)
             stream.flush()
             os.fsync(stream.fileno())
         os.replace(temporary, path)
@@ -64,25 +92,61 @@ def save_map(radiance_map: SavableMap, path: str | Path) -> Path:
     return path
 
 
+def _payload_of(path: Path, data: bytes) -> tuple[bytes, int]:
+    """(torch archive bytes, file format version) of a map file's ``data``, checked against its header.
+
+    Raises:
+        MapFileError: foreign, truncated, newer version, checksum mismatch.
+    """
+    if data.startswith(b"PK\x03\x04"):  # a bare torch.save zip archive: version 1
+        logger.warning("map file %s: format version 1 carries no checksum; re-save it (locnerf map build) for version 2", path)
+        return data, 1
+    if not data.startswith(MAGIC):
+        raise MapFileError(f"map file {path}: not a locnerf map (no '{MAGIC.rstrip(bytes(1)).decode()}' header)")
+    if len(data) < HEADER.size:
+        raise MapFileError(f"map file {path}: truncated header ({len(data)} of {HEADER.size} bytes)")
+    _, version, length, digest = HEADER.unpack_from(data)
+    if version > FORMAT_VERSION:
+        raise MapFileError(f"map file {path}: format version {version} is newer than this locnerf reads ({FORMAT_VERSION}); upgrade locnerf")
+    if version < 2:
+        raise MapFileError(f"map file {path}: format version {version} in a version-2 header")
+    payload = data[HEADER.size :]
+    if len(payload) != length:
+        raise MapFileError(f"map file {path}: truncated or extended payload ({len(payload)} bytes, the header says {length})")
+    if hashlib.sha256(payload).digest() != digest:
+        raise MapFileError(f"map file {path}: checksum mismatch (SHA-256 of the payload differs from the header): damaged or tampered")
+    return payload, version
+
+
 def read_map_archive(path: str | Path) -> dict[str, Any]:
     """The checked archive dict of a map file (see the module docstring).
 
     Raises:
         FileNotFoundError: no such file.
-        MapFileError: truncated/corrupt, not a locnerf map, newer format version, unknown backend.
+        MapFileError: truncated/corrupt, not a locnerf map, newer format version, checksum mismatch,
+            objects that only code could rebuild, unknown backend.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"map file {path}: no such file")
+    payload, file_version = _payload_of(path, path.read_bytes())
     try:
-        archive = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises several types for truncated or foreign archives
-        raise MapFileError(f"map file {path}: cannot be read as a locnerf map (truncated or not a map file: {error})") from error
+        archive = torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        # torch's message advises loading with weights_only=False, i.e. running the file's code: not passed on.
+        raise MapFileError(
+            f"map file {path}: refused, the archive holds objects other than tensors and plain data "
+            "(a pickled class or callable, which would run code when loaded); a locnerf map never needs them"
+        ) from None
+    except (RuntimeError, EOFError, OSError, ValueError, zipfile.BadZipFile) as error:
+        raise MapFileError(f"map file {path}: cannot be read as a locnerf map (truncated or not a map file: {type(error).__name__})") from None
     if not isinstance(archive, dict) or archive.get("format") != FORMAT_NAME:
         raise MapFileError(f"map file {path}: not a locnerf map (no '{FORMAT_NAME}' format tag)")
     version = archive.get("version")
     if not isinstance(version, int) or version > FORMAT_VERSION:
         raise MapFileError(f"map file {path}: format version {version!r} is newer than this locnerf reads ({FORMAT_VERSION}); upgrade locnerf")
+    if version != file_version:
+        raise MapFileError(f"map file {path}: archive version {version} inside a version-{file_version} file")
     if archive.get("kind") not in BACKENDS:
         raise MapFileError(f"map file {path}: unknown backend kind {archive.get('kind')!r}, expected one of {sorted(BACKENDS)}")
     return archive

@@ -48,7 +48,7 @@ def _open_envelope(data: bytes, expected: type[Message]) -> Message:
         raise DecodeError("undecodable", f"not a msgpack envelope ({error})") from None
     if not isinstance(envelope, dict) or not {"v", "type", "body"} <= envelope.keys():
         raise DecodeError("undecodable", "expected a map with keys v, type, body")
-    if envelope["v"] != SCHEMA_VERSION:
+    if type(envelope["v"]) is not int or envelope["v"] != SCHEMA_VERSION:  # 1.0 and True equal 1 in Python
         raise DecodeError("schema_version", f"schema version {envelope['v']!r}, expected {SCHEMA_VERSION}")
     if envelope["type"] != expected.__name__:
         raise DecodeError("wrong_type", f"message type {envelope['type']!r}, expected {expected.__name__}")
@@ -77,11 +77,14 @@ def encode_image(header: ImageHeader, pixels: np.ndarray) -> bytes:
     return _LENGTH.pack(len(head)) + head + np.ascontiguousarray(pixels).tobytes()
 
 
-def decode_image(data: bytes) -> tuple[ImageHeader, np.ndarray]:
+def decode_image(data: bytes, max_pixels: int | None = None) -> tuple[ImageHeader, np.ndarray]:
     """Frame bytes -> (header, pixels (H, W, 3) uint8 as RGB).
 
+    Args:
+        max_pixels: refuse headers declaring more than this many pixels (None: no limit).
+
     Raises:
-        DecodeError: as :func:`decode`, plus ``image_encoding`` and ``image_size`` mismatches.
+        DecodeError: as :func:`decode`, plus ``image_encoding``, ``image_too_large`` and ``image_size``.
     """
     if len(data) < _LENGTH.size:
         raise DecodeError("undecodable", f"image frame of {len(data)} bytes is shorter than its length prefix")
@@ -91,6 +94,8 @@ def decode_image(data: bytes) -> tuple[ImageHeader, np.ndarray]:
     header = _open_envelope(data[_LENGTH.size : _LENGTH.size + head_length], ImageHeader)
     if header.encoding not in IMAGE_ENCODINGS:
         raise DecodeError("image_encoding", f"encoding {header.encoding!r}, expected one of {IMAGE_ENCODINGS}")
+    if max_pixels is not None and header.width * header.height > max_pixels:
+        raise DecodeError("image_too_large", f"{header.width}×{header.height} pixels, at most {max_pixels} accepted")
     payload = memoryview(data)[_LENGTH.size + head_length :]
     expected = header.width * header.height * 3
     if len(payload) != expected:

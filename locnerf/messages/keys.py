@@ -26,6 +26,8 @@ GROUND_TRUTH = Topic("sensors/ground_truth", schemas.PoseStamped.__name__, "sens
 POSE = Topic("filter/pose", schemas.PoseEstimate.__name__, "filter_loop", "pose estimate at the odometry rate")
 PARTICLES = Topic("filter/particles", schemas.ParticleCloud.__name__, "filter_loop", "particle cloud, lower rate")
 STATUS = Topic("filter/status", schemas.FilterStatus.__name__, "filter_loop", "rates, latency, counters, 1 Hz")
+WORKER_STATUS = Topic("worker/status/{worker_id}", schemas.ServiceStatus.__name__, "nerf_worker", "requests answered, bad messages by kind, 1 Hz")
+INGEST_STATUS = Topic("ingest/status/{ingest_id}", schemas.ServiceStatus.__name__, "sensor_ingest", "events sent, bad messages by kind, 1 Hz")
 UPDATE_REQUEST = Topic("update/request/{worker_id}", schemas.UpdateRequest.__name__, "filter_loop", "one shard for one worker")
 UPDATE_RESULT = Topic("update/result", schemas.UpdateResult.__name__, "nerf_worker", "log-likelihoods of a shard")
 WORKER_ALIVE = Topic("alive/worker/{worker_id}/{device}", "liveliness token", "nerf_worker", "a live worker and its device")
@@ -35,7 +37,8 @@ GLOBAL_LOCALIZATION = Topic(
 )
 
 TABLE: tuple[Topic, ...] = (
-    IMAGE, ODOMETRY, GROUND_TRUTH, POSE, PARTICLES, STATUS, UPDATE_REQUEST, UPDATE_RESULT, WORKER_ALIVE, INITIAL_POSE, GLOBAL_LOCALIZATION
+    IMAGE, ODOMETRY, GROUND_TRUTH, POSE, PARTICLES, STATUS, WORKER_STATUS, INGEST_STATUS, UPDATE_REQUEST, UPDATE_RESULT, WORKER_ALIVE,
+    INITIAL_POSE, GLOBAL_LOCALIZATION,
 )
 
 

@@ -49,6 +49,10 @@ class _Wire(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
 
+MAX_ABS_STAMP = 1e10
+"""Largest accepted |stamp|, seconds (Unix time of the year 2286): beyond it a stamp is garbage."""
+
+
 class Stamped(_Wire):
     """Base of time-stamped messages."""
 
@@ -58,8 +62,8 @@ class Stamped(_Wire):
     @field_validator("stamp")
     @classmethod
     def _finite_stamp(cls, value: float) -> float:
-        if not math.isfinite(value):
-            raise ValueError(f"stamp={value}: expected a finite number of seconds")
+        if not math.isfinite(value) or abs(value) >= MAX_ABS_STAMP:
+            raise ValueError(f"stamp={value}: expected a finite number of seconds below {MAX_ABS_STAMP:g} in magnitude")
         return value
 
 
@@ -148,6 +152,14 @@ class FilterStatus(Stamped):
     counters: dict[str, int] = Field(description="Counts: updates merged, stale, timed out, retried, dropped images, bad messages by kind.")
 
 
+class ServiceStatus(Stamped):
+    """Health of a worker or ingest process: its counters, like FilterStatus's, 1 Hz."""
+
+    service: str = Field(description="nerf_worker or sensor_ingest.")
+    instance: str = Field(description="Worker id or ingest id.")
+    counters: dict[str, int] = Field(description="Counts: messages handled, bad messages by kind (bad_<kind>, bad_messages), inbox drops.")
+
+
 class UpdateRequest(_Wire):
     """One shard of an update: render ``pixels`` from every pose and compare with ``observed_rgb``."""
 
@@ -214,6 +226,7 @@ WIRE_TYPES: dict[str, type[_Wire]] = {
         PoseEstimate,
         ParticleCloud,
         FilterStatus,
+        ServiceStatus,
         UpdateRequest,
         UpdateResult,
         InitialPoseCommand,

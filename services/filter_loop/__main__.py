@@ -78,6 +78,7 @@ def serve(loop: FilterLoop, bus: Bus, stop: threading.Event, ros2: Ros2Config | 
     finally:
         for handle in handles:
             handle.close()
+        loop.close()
         logger.info("%s", driver.timings.summary())
 
 

@@ -59,6 +59,13 @@ class CompletedUpdate:
 
 Outgoing = tuple[str, UpdateRequest]
 
+ISSUED_MEMORY = 4096
+"""Request ids remembered after their update ended, to tell a late result from a forged one."""
+
+
+class UnknownRequestError(ValueError):
+    """A result for a request id this filter never issued (or so long ago that it was forgotten)."""
+
 
 class UpdateDispatcher:
     """Tracks live workers and the update in flight.
@@ -77,6 +84,8 @@ class UpdateDispatcher:
         self.pending: dict[str, _Update] = {}
         self.counters: collections.Counter[str] = collections.Counter()
         self._turn = itertools.count()
+        self._issued: collections.deque[str] = collections.deque(maxlen=ISSUED_MEMORY)
+        self._issued_set: set[str] = set()
 
     @property
     def can_start(self) -> bool:
@@ -147,6 +156,10 @@ class UpdateDispatcher:
             request = UpdateRequest(shard=index, ids=ids[part].tolist(), poses=poses[part].tolist(), **common)
             update.shards.append(_Shard(request, worker))
         self.pending[update.request_id] = update
+        if len(self._issued) == self._issued.maxlen:
+            self._issued_set.discard(self._issued[0])
+        self._issued.append(update.request_id)
+        self._issued_set.add(update.request_id)
         self.counters["updates_started"] += 1
         return [(shard.worker, shard.request) for shard in update.shards]
 
@@ -154,10 +167,13 @@ class UpdateDispatcher:
         """Store a shard's result; the joined update once every shard has answered.
 
         Raises:
+            UnknownRequestError: a result for a request id never issued (or forgotten, see ``ISSUED_MEMORY``).
             ValueError: a result for the pending update whose ids do not match its shard.
         """
         update = self.pending.get(result.request_id)
         if update is None:
+            if result.request_id not in self._issued_set:
+                raise UnknownRequestError(f"result from {result.worker_id} for request {result.request_id!r}, which this filter never issued")
             self.counters["late_results"] += 1
             return None
         if result.shard >= len(update.shards) or result.ids != update.shards[result.shard].request.ids:

@@ -133,6 +133,8 @@ class FilterDriver:
     def _take_image(self) -> Outgoing:
         image = self.images.take()
         self.loop.images_replaced_upstream = self.images.replaced
+        self.loop.images_received = self.images.received
+        self.loop.inbox_dropped = self.inbox.dropped
         return self._translated(*image, "image", self.loop.handle_image) if image is not None else []
 
     def _run(self, kind: str, work: Callable[[], Outgoing], only_if_output: bool = False) -> None:

@@ -36,10 +36,11 @@ from locnerf.messages.schemas import (
     PoseEstimate,
     UpdateResult,
 )
-from services.filter_loop.dispatcher import UpdateDispatcher
+from services.filter_loop.dispatcher import UnknownRequestError, UpdateDispatcher
 from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
 from services.filter_loop.odometry_history import OdometryHistory
-from services.filter_loop.state_file import SavedPose, load_pose, save_pose
+from services.filter_loop.state_file import SavedPose, load_pose
+from services.filter_loop.state_writer import StateWriter
 from services.runtime import BadMessages, RateMeter
 
 logger = logging.getLogger(__name__)
@@ -63,6 +64,12 @@ class FilterLoopConfig(BaseModel):
     particles_rate: float = Field(2.0, gt=0, description="Particle clouds published per second.")
     status_rate: float = Field(1.0, gt=0, description="Status messages published per second.")
     state_file: str = Field("", description="File where the last pose is saved and resumed from on restart (empty: none).")
+    max_image_pixels: int = Field(
+        4096 * 4096, gt=0, description="Images whose header declares more pixels than this are dropped unread (bad_image_too_large)."
+    )
+    state_save_rate: float = Field(
+        1.0, gt=0, description="Saves of the state file per second at most (a writer thread does them, off the pose path)."
+    )
     T_body_cam: list[list[float]] = Field(
         default_factory=lambda: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
         description="4×4 pose of the camera (locnerf's OpenGL axes: x right, y up, z back) in the odometry's body frame, metres. "
@@ -115,10 +122,13 @@ class FilterLoop:
         self.latencies: collections.deque[float] = collections.deque(maxlen=20)
         self.images_replaced = 0
         self.images_replaced_upstream = 0
+        self.images_received = 0
+        self.inbox_dropped = 0
         self.odometry_restarts = 0
         self._image: tuple[ImageHeader, np.ndarray] | None = None
         self._last_particles = self._last_status = -float("inf")
         self._state_file = Path(config.state_file) if config.state_file else None
+        self._state_writer = StateWriter(self._state_file, config.state_save_rate) if self._state_file else None
         self._estimate: FilterEstimate | None = None
         self._estimate_stale = False
         self._pending_increment: torch.Tensor | None = None
@@ -220,8 +230,8 @@ class FilterLoop:
         pose = map_to_metric(estimate.pose, self.normalization)
         covariance = convert_covariance(estimate.covariance, self.normalization, to_map=False)
         covariance = 0.5 * (covariance + covariance.T)
-        if self._state_file is not None:
-            save_pose(self._state_file, SavedPose(stamp, pose, covariance, self.history.latest_pose))
+        if self._state_writer is not None:  # fresh tensors: the writer thread never sees the filter's own
+            self._state_writer.offer(SavedPose(stamp, pose.clone(), covariance.clone(), self.history.latest_pose.clone()))
         self.rates["pose"].tick()
         message = PoseEstimate(
             stamp=stamp,
@@ -238,7 +248,7 @@ class FilterLoop:
     def handle_image(self, payload: bytes) -> Outgoing:
         """Keep the newest valid image for the next update."""
         try:
-            header, pixels = decode_image(payload)
+            header, pixels = decode_image(payload, self.config.max_image_pixels)
         except DecodeError as error:
             self.bad.record(error.kind, error.reason)
             return []
@@ -259,6 +269,9 @@ class FilterLoop:
             completed = self.dispatcher.receive(decode(payload, UpdateResult), self.clock())
         except DecodeError as error:
             self.bad.record(error.kind, error.reason)
+            return []
+        except UnknownRequestError as error:
+            self.bad.record("unknown_request", str(error))
             return []
         except ValueError as error:
             self.bad.record("result_mismatch", str(error))
@@ -320,6 +333,11 @@ class FilterLoop:
     def _requests(self, outgoing: list) -> Outgoing:
         return [(self._key(keys.UPDATE_REQUEST, worker_id=worker), encode(request)) for worker, request in outgoing]
 
+    def close(self) -> None:
+        """Stop the state writer after writing the last pose (if a state file is configured)."""
+        if self._state_writer is not None:
+            self._state_writer.close()
+
     # ------------------------------------------------------------------ periodic work
     def tick(self) -> Outgoing:
         """Expire or start an update; publish particles and status when due."""
@@ -377,6 +395,9 @@ class FilterLoop:
             "images_replaced": self.images_replaced + self.images_replaced_upstream,
             "bad_messages": self.bad.total,
             "odometry_restarts": self.odometry_restarts,
+            "inbox_dropped": self.inbox_dropped,
+            "images_received": self.images_received,
+            "state_save_failures": self._state_writer.failures if self._state_writer else 0,
         }
         counts |= dict(self.dispatcher.counters)
         counts |= {f"bad_{kind}": count for kind, count in self.bad.counts.items()}

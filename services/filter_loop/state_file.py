@@ -18,7 +18,8 @@ logger = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class SavedPose:
     """A metric pose ``T_world_cam`` (4, 4), its 6×6 covariance and the odometry pose
-    ``T_odom_body`` (4, 4) of the same stamp (so that a restart applies the motion since), float64."""
+    ``T_odom_body`` (4, 4) of the same stamp (so that a restart applies the motion since), float64.
+    Handed to the writer thread: its tensors must not be shared with the filter."""
 
     stamp: float
     T_world_cam: torch.Tensor
@@ -44,9 +45,9 @@ def save_pose(path: Path, saved: SavedPose) -> None:
 
 def load_pose(path: Path) -> SavedPose | None:
     """The saved pose, or None when the file is absent or unreadable (logged)."""
-    if not path.is_file():
-        return None
     try:
+        if not path.is_file():
+            return None
         data = json.loads(path.read_text())
         saved = SavedPose(
             float(data["stamp"]),
@@ -58,7 +59,7 @@ def load_pose(path: Path) -> SavedPose | None:
         validate_poses(saved.T_odom_body, name=f"{path}: T_odom_body")
         if saved.covariance.shape != (6, 6) or not torch.isfinite(saved.covariance).all():
             raise ValueError(f"covariance: expected a finite 6×6 matrix, got shape {tuple(saved.covariance.shape)}")
-    except (ValueError, KeyError, TypeError) as error:
+    except (ValueError, KeyError, TypeError, OSError) as error:
         logger.warning("ignoring the saved filter state %s: %s", path, error)
         return None
     return saved

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import socket
 import sys
 import threading
 from pathlib import Path
@@ -18,7 +17,7 @@ from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, encode
 from locnerf.messages.schemas import UpdateRequest
 from services.nerf_worker.service import NerfWorker, RequestError
-from services.runtime import BadMessages, limit_torch_threads, load_service_config, stop_on_signals
+from services.runtime import BadMessages, StatusPublisher, default_instance_id, limit_torch_threads, load_service_config, stop_on_signals
 from services.transport import Bus, Inbox, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
@@ -44,22 +43,21 @@ class WorkerConfig(BaseModel):
     transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
 
 
-def default_worker_id() -> str:
-    """``<hostname>-<pid>`` with key-expression-safe characters."""
-    host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname())
-    return f"{host}-{os.getpid()}"
-
-
 def serve(worker: NerfWorker, bus: Bus, robot_id: str, device_name: str, stop: threading.Event) -> BadMessages:
-    """Answer requests addressed to this worker until ``stop`` is set; returns the bad-message counts."""
+    """Answer requests addressed to this worker until ``stop`` is set; returns the bad-message counts.
+
+    Publishes a ServiceStatus (requests answered, bad messages by kind, inbox drops) every second."""
     bad = BadMessages("nerf_worker")
     inbox: Inbox[bytes] = Inbox(capacity=8)
+    status = StatusPublisher(bus.publish, keys.key(robot_id, keys.WORKER_STATUS, worker_id=worker.worker_id), "nerf_worker", worker.worker_id, bad)
+    answered = 0
     subscription = bus.subscribe(keys.key(robot_id, keys.UPDATE_REQUEST, worker_id=worker.worker_id), lambda _k, payload: inbox.put(payload))
     token = bus.declare_token(keys.key(robot_id, keys.WORKER_ALIVE, worker_id=worker.worker_id, device=device_name))
     result_key = keys.key(robot_id, keys.UPDATE_RESULT)
     logger.info("worker %s serving robot %s", worker.worker_id, robot_id)
     try:
         while not stop.is_set():
+            status.publish_if_due({"requests_answered": answered, "inbox_dropped": inbox.dropped})
             payload = inbox.get(timeout=0.1)
             if payload is None:
                 continue
@@ -72,6 +70,7 @@ def serve(worker: NerfWorker, bus: Bus, robot_id: str, device_name: str, stop: t
                 bad.record("bad_request", str(error))
                 continue
             bus.publish(result_key, encode(result))
+            answered += 1
     finally:
         token.close()
         subscription.close()
@@ -94,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     if config.nice:
         os.nice(config.nice)
     device = resolve_device(config.device)
-    worker = NerfWorker(open_map(config.map, device), config.worker_id or default_worker_id())
+    worker = NerfWorker(open_map(config.map, device), config.worker_id or default_instance_id())
     stop = stop_on_signals()
     bus = open_bus(config.transport.with_environment())
     try:

@@ -22,7 +22,15 @@ from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus
 from locnerf.sim.world import ProceduralWorld
 from services.ros2.config import Ros2Config
-from services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, stop_on_signals
+from services.runtime import (
+    BadMessages,
+    StatusPublisher,
+    default_instance_id,
+    limit_torch_threads,
+    load_service_config,
+    prefer_latency_over_throughput,
+    stop_on_signals,
+)
 from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
 from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
 from services.sensor_ingest.events import SensorEvent
@@ -42,6 +50,7 @@ class IngestConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     robot_id: str = Field("robot", description="Robot whose sensor keys are published.")
+    ingest_id: str = Field("", description="Name of this ingest in its status key (empty: <hostname>-<pid>).")
     source: Literal["world", "replay", "euroc", "camera", "ros2"] = Field(
         "world",
         description="Stream source: the procedural world along a trajectory, the replay of a posed image sequence, "
@@ -77,13 +86,16 @@ class IngestConfig(BaseModel):
     transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
 
 
-def wait_for_workers(bus: Bus, robot_id: str, count: int, timeout: float, stop: threading.Event) -> bool:
-    """Block until a FilterStatus lists at least ``count`` workers; False on timeout or stop."""
-    inbox: Inbox[bytes] = Inbox(capacity=4)
+def wait_for_workers(bus: Bus, robot_id: str, count: int, timeout: float, stop: threading.Event, status: StatusPublisher) -> bool:
+    """Block until a FilterStatus lists at least ``count`` workers; False on timeout or stop.
+
+    Bad status messages are counted by kind in ``status.bad`` (published by ``status``) and dropped."""
+    inbox: Inbox[bytes] = Inbox(capacity=64)
     subscription = bus.subscribe(keys.key(robot_id, keys.STATUS), lambda _k, payload: inbox.put(payload))
     deadline = time.monotonic() + timeout
     try:
         while not stop.is_set() and time.monotonic() < deadline:
+            status.publish_if_due({"events_sent": 0, "inbox_dropped": inbox.dropped})
             payload = inbox.get(timeout=0.2)
             if payload is None:
                 continue
@@ -91,7 +103,7 @@ def wait_for_workers(bus: Bus, robot_id: str, count: int, timeout: float, stop: 
                 if len(decode(payload, FilterStatus).workers) >= count:
                     return True
             except DecodeError as error:
-                logger.warning("ignoring a bad status message while waiting: %s", error)
+                status.bad.record(error.kind, error.reason)
         return False
     finally:
         subscription.close()
@@ -122,20 +134,21 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
     return replay_events(sequence, config.replay, generator)
 
 
-def relay_ros2(bus: Bus, config: IngestConfig, stop: threading.Event) -> int:
-    """Republish the ROS 2 sensor topics until ``stop``; returns the number of messages sent."""
-    ingest = Ros2Ingest(bus, config.robot_id, config.ros2)
+def relay_ros2(bus: Bus, config: IngestConfig, stop: threading.Event, status: StatusPublisher) -> int:
+    """Republish the ROS 2 sensor topics until ``stop``; returns the number of messages sent (reported by ``status``)."""
+    ingest = Ros2Ingest(bus, config.robot_id, config.ros2, status.bad)
     logger.info("ros2 ingest: node %s_ingest in domain %d", config.ros2.node_name, config.ros2.domain_id)
     try:
         while not stop.is_set():
             ingest.step(timeout=0.05)
+            status.publish_if_due({"events_sent": ingest.sent})
     finally:
         ingest.close()
     return ingest.sent
 
 
-def stream(bus: Bus, config: IngestConfig, stop: threading.Event) -> int:
-    """Publish the configured stream; returns the number of events sent."""
+def stream(bus: Bus, config: IngestConfig, stop: threading.Event, status: StatusPublisher) -> int:
+    """Publish the configured stream; returns the number of events sent (reported by ``status`` every second)."""
     events: Iterable[SensorEvent] = sensor_events(config)
     sent = 0
     with contextlib.ExitStack() as stack:
@@ -150,6 +163,7 @@ def stream(bus: Bus, config: IngestConfig, stop: threading.Event) -> int:
         for event in Pacer(config.speed).paced(events, stop.is_set):
             bus.publish(*event_message(config.robot_id, event))
             sent += 1
+            status.publish_if_due({"events_sent": sent})
     return sent
 
 
@@ -173,13 +187,16 @@ def run(args: argparse.Namespace) -> int:
     prefer_latency_over_throughput()
     stop = stop_on_signals()
     bus = open_bus(config.transport.with_environment())
+    ingest_id = config.ingest_id or default_instance_id()
+    status = StatusPublisher(bus.publish, keys.key(config.robot_id, keys.INGEST_STATUS, ingest_id=ingest_id), "sensor_ingest", ingest_id, BadMessages("sensor_ingest"))
     try:
-        if config.wait_for_workers and not wait_for_workers(bus, config.robot_id, config.wait_for_workers, config.wait_timeout, stop):
+        if config.wait_for_workers and not wait_for_workers(bus, config.robot_id, config.wait_for_workers, config.wait_timeout, stop, status):
             if stop.is_set():
                 return 0
             logger.error("no filter with %d live worker(s) within %.0f s: not streaming", config.wait_for_workers, config.wait_timeout)
             return 1
-        sent = relay_ros2(bus, config, stop) if config.source == "ros2" else stream(bus, config, stop)
+        sent = relay_ros2(bus, config, stop, status) if config.source == "ros2" else stream(bus, config, stop, status)
+        status.publish_if_due({"events_sent": sent}, force=True)
         logger.info("ingest: %d events sent", sent)
     finally:
         bus.close()

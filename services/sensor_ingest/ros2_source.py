@@ -32,16 +32,17 @@ class Ros2Ingest:
         bus: the Zenoh session (the same one carries ROS 2 and locnerf's keys).
         robot_id: locnerf key prefix of the republished messages.
         config: topic names, domain, namespace and frames (the filter's output fields are unused).
+        bad: where bad samples are counted (the ingest's status reports it); a new one when None.
     """
 
-    def __init__(self, bus: Bus, robot_id: str, config: Ros2Config) -> None:
+    def __init__(self, bus: Bus, robot_id: str, config: Ros2Config, bad: BadMessages | None = None) -> None:
         self.bus = bus
         self.robot_id = robot_id
         self.node = Ros2Node(bus, config.domain_id, f"{config.node_name}_ingest", config.namespace)
         self.sensors = Ros2Sensors(self.node, config)
         self.inbox: Inbox[tuple[str, str, Received]] = Inbox(capacity=256)
         self.images: LatestSlot[tuple[str, Received]] = LatestSlot()
-        self.bad = BadMessages("sensor_ingest")
+        self.bad = BadMessages("sensor_ingest") if bad is None else bad
         self.sent = 0
         self.sensors.subscribe(
             lambda _urgent, kind, key, received: self.inbox.put((kind, key, received)), lambda key, received: self.images.put((key, received))

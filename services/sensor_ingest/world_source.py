@@ -37,6 +37,12 @@ class WorldSourceConfig(BaseModel):
     trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig, description="Path of the camera.")
     odometry: OdometryNoiseConfig = Field(default_factory=OdometryNoiseConfig, description="VIO noise and drift.")
     camera: CameraNoiseConfig = Field(default_factory=CameraNoiseConfig, description="Frame noise and exposure change.")
+    distinct_frames: int = Field(
+        0,
+        ge=0,
+        description="Render only the first N frames and send them again in turn (0: render every frame). An overload test "
+        "uses it to send images faster than the renderer could; the images then no longer match the poses.",
+    )
 
 
 def _frame(world: ProceduralWorld, pose: torch.Tensor, stamp: float, camera: CameraNoiseConfig, generator: torch.Generator) -> np.ndarray:
@@ -50,6 +56,7 @@ def _frame(world: ProceduralWorld, pose: torch.Tensor, stamp: float, camera: Cam
 def world_events(world: ProceduralWorld, config: WorldSourceConfig, generator: torch.Generator) -> Iterator[SensorEvent]:
     """Time-ordered ground truth and odometry (same stamps, truth first) and image events.
 
+    Every frame is rendered at its pose, unless ``config.distinct_frames`` caps the rendered ones.
     The body frame is the camera frame (OpenGL axes); stamps are trajectory seconds.
     """
     trajectory = FigureEightTrajectory(config.trajectory)
@@ -59,10 +66,17 @@ def world_events(world: ProceduralWorld, config: WorldSourceConfig, generator: t
     camera_count = int(config.duration * config.camera_rate)
     stamps = [(config.start_time + i * odometry_period, 0) for i in range(odometry_count)]
     stamps += [(config.start_time + i * camera_period, 1) for i in range(camera_count)]
+    reused: list[np.ndarray] = []  # the first distinct_frames frames, when they are sent again
     for stamp, is_camera in sorted(stamps):
         pose = trajectory.pose_at(stamp)
         if is_camera:
-            yield ImageEvent(stamp, _frame(world, pose, stamp, config.camera, generator), world.default_intrinsics)
+            if config.distinct_frames and len(reused) == config.distinct_frames:
+                pixels = reused[round(stamp * config.camera_rate) % len(reused)]
+            else:
+                pixels = _frame(world, pose, stamp, config.camera, generator)
+                if config.distinct_frames:
+                    reused.append(pixels)
+            yield ImageEvent(stamp, pixels, world.default_intrinsics)
         else:
             yield GroundTruthEvent(stamp, pose)
             yield OdometryEvent(stamp, odometry.step(stamp, pose))

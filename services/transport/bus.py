@@ -95,11 +95,13 @@ class LatestSlot(Generic[Item]):
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._item: Item | None = None
+        self.received = 0
         self.replaced = 0
 
     def put(self, item: Item) -> None:
         """Replace the held item (called from transport threads)."""
         with self._lock:
+            self.received += 1
             if self._item is not None:
                 self.replaced += 1
             self._item = item

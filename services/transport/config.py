@@ -28,6 +28,11 @@ class TransportConfig(BaseModel):
         ("tcp/127.0.0.1:0",), description="Endpoints to listen on (peer mode); port 0 picks a free port, advertised by gossip."
     )
     multicast_scouting: bool = Field(False, description="UDP multicast discovery (off: endpoints are explicit).")
+    block_when_congested: bool = Field(
+        False,
+        description="Publishers wait when the network queue is full instead of dropping (the services drop: a stale sample "
+        "is worth less than a blocked pose thread; locnerf fuzz blocks, so that every payload it counts is delivered).",
+    )
 
     @field_validator("connect", "listen")
     @classmethod

@@ -78,7 +78,8 @@ class ZenohBus:
     def publish(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
         publisher = self._publishers.get(key)
         if publisher is None:
-            publisher = self._publishers[key] = self._session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
+            congestion = zenoh.CongestionControl.BLOCK if self.config.block_when_congested else zenoh.CongestionControl.DROP
+            publisher = self._publishers[key] = self._session.declare_publisher(key, congestion_control=congestion)
         publisher.put(payload, attachment=attachment)
 
     def subscribe(self, key_expr: str, callback: SampleCallback) -> _Undeclare:

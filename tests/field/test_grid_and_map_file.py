@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
+import io
+import struct
 from pathlib import Path
 
 import pytest
@@ -9,7 +12,7 @@ import torch
 
 from locnerf.field.grid import GridField, GridFieldConfig
 from locnerf.field.grid_map import GridMap
-from locnerf.field.map_file import MapFileError, load_map, save_map
+from locnerf.field.map_file import FORMAT_VERSION, HEADER, MAGIC, MapFileError, load_map, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.protocol import MapNormalization, RadianceMap
 from locnerf.render.camera import PinholeIntrinsics
@@ -84,21 +87,87 @@ def test_map_file_round_trip(generator: torch.Generator, tmp_path: Path) -> None
 
 def test_map_file_refusals(generator: torch.Generator, tmp_path: Path) -> None:
     path = save_map(_tiny_map(generator), tmp_path / "good.locmap")
+    data = path.read_bytes()
+    assert data.startswith(MAGIC)
     truncated = tmp_path / "truncated.locmap"
-    truncated.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    truncated.write_bytes(data[: len(data) // 2])
     with pytest.raises(MapFileError, match="truncated"):
         load_map(truncated)
+    header_only = tmp_path / "header_only.locmap"
+    header_only.write_bytes(data[:30])
+    with pytest.raises(MapFileError, match="truncated header"):
+        load_map(header_only)
     foreign = tmp_path / "foreign.locmap"
     torch.save({"weights": torch.zeros(3)}, foreign)
     with pytest.raises(MapFileError, match="not a locnerf map"):
         load_map(foreign)
-    archive = torch.load(path, weights_only=True)
-    newer = tmp_path / "newer.locmap"
-    torch.save({**archive, "version": 99}, newer)
+    (tmp_path / "text.locmap").write_text("hello")
+    with pytest.raises(MapFileError, match="not a locnerf map"):
+        load_map(tmp_path / "text.locmap")
+    archive = torch.load(io.BytesIO(data[HEADER.size :]), weights_only=True)
+    newer_archive = tmp_path / "newer_archive.locmap"
+    torch.save({**archive, "version": 99}, newer_archive)
     with pytest.raises(MapFileError, match="version 99 is newer"):
-        load_map(newer)
+        load_map(newer_archive)
+    newer_header = tmp_path / "newer_header.locmap"
+    newer_header.write_bytes(data[:8] + struct.pack(">I", 3) + data[12:])
+    with pytest.raises(MapFileError, match="version 3 is newer"):
+        load_map(newer_header)
     with pytest.raises(FileNotFoundError, match="nothing.locmap"):
         load_map(tmp_path / "nothing.locmap")
+
+
+def test_tampered_payload_is_refused_by_its_checksum(generator: torch.Generator, tmp_path: Path) -> None:
+    data = bytearray(save_map(_tiny_map(generator), tmp_path / "good.locmap").read_bytes())
+    for offset in (HEADER.size, HEADER.size + 1000, len(data) - 1):
+        tampered = bytearray(data)
+        tampered[offset] ^= 0x01
+        (tmp_path / "tampered.locmap").write_bytes(bytes(tampered))
+        with pytest.raises(MapFileError, match="checksum mismatch"):
+            load_map(tmp_path / "tampered.locmap")
+
+
+def test_version_1_map_files_still_load(generator: torch.Generator, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    radiance_map = _tiny_map(generator)
+    data = save_map(radiance_map, tmp_path / "v2.locmap").read_bytes()
+    archive = torch.load(io.BytesIO(data[HEADER.size :]), weights_only=True)
+    torch.save({**archive, "version": 1}, tmp_path / "v1.locmap")
+    loaded = load_map(tmp_path / "v1.locmap")
+    origins, directions = _rays(generator)
+    torch.testing.assert_close(loaded.render_rays(origins, directions), radiance_map.render_rays(origins, directions))
+    assert "no checksum" in caplog.text
+
+
+class _Payload:
+    """What an attacker pickles: unpickling it calls ``Path.touch(marker)``."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+def _with_header(payload: bytes) -> bytes:
+    """A version-2 file around ``payload`` with a correct checksum, as an attacker would write it."""
+    return HEADER.pack(MAGIC, FORMAT_VERSION, len(payload), hashlib.sha256(payload).digest()) + payload
+
+
+@pytest.mark.parametrize("wrapped", [False, True], ids=["bare_archive", "valid_header"])
+def test_map_file_with_code_is_refused_without_running_it(generator: torch.Generator, tmp_path: Path, wrapped: bool) -> None:
+    archive = torch.load(io.BytesIO(save_map(_tiny_map(generator), tmp_path / "good.locmap").read_bytes()[HEADER.size :]), weights_only=True)
+    marker = tmp_path / "pwned"
+    buffer = io.BytesIO()
+    torch.save({**archive, "version": FORMAT_VERSION if wrapped else 1, "metadata_hook": _Payload(marker)}, buffer)
+    hostile = tmp_path / "hostile.locmap"
+    hostile.write_bytes(_with_header(buffer.getvalue()) if wrapped else buffer.getvalue())
+    with pytest.raises(MapFileError, match="refused") as refused:
+        load_map(hostile)
+    assert not marker.exists()
+    assert "weights_only" not in str(refused.value) and "weights_only" not in str(refused.value.__cause__ or "")
+    # Control: the same bytes do run their code when unpickled without the protection.
+    torch.load(io.BytesIO(buffer.getvalue()), weights_only=False)
+    assert marker.exists()
 
 
 def test_interrupted_save_leaves_nothing(generator: torch.Generator, tmp_path: Path) -> None:

@@ -27,6 +27,7 @@ EXAMPLES = [
     schemas.UpdateResult(request_id="r", shard=0, worker_id="w", epoch=1, generation=2, ids=[7], log_likelihoods=[-math.inf], compute_seconds=0.1),
     schemas.InitialPoseCommand(stamp=0.0, T_world_cam=EYE, covariance=COV),
     schemas.GlobalLocalizationCommand(stamp=0.0),
+    schemas.ServiceStatus(stamp=1.7e9, service="nerf_worker", instance="w", counters={"requests_answered": 3, "bad_messages": 0}),
 ]
 
 
@@ -103,3 +104,29 @@ def test_key_table_is_unique_and_parses_worker_tokens():
     with pytest.raises(ValueError, match="robot id"):
         keys.key("a/b", keys.POSE)
     assert "`filter/pose`" in keys.markdown_table()
+
+
+@pytest.mark.parametrize("version", [1.0, True, "1", 2, None])
+def test_only_the_integer_schema_version_is_accepted(version):
+    body = schemas.GlobalLocalizationCommand(stamp=0.0).model_dump()
+    payload = msgpack.packb({"v": version, "type": "GlobalLocalizationCommand", "body": body})
+    with pytest.raises(codec.DecodeError) as error:
+        codec.decode(payload, schemas.GlobalLocalizationCommand)
+    assert error.value.kind == "schema_version"
+
+
+@pytest.mark.parametrize("stamp", [1e10, -1e10, 1e300])
+def test_absurd_stamps_are_invalid(stamp):
+    payload = msgpack.packb({"v": 1, "type": "GlobalLocalizationCommand", "body": {"stamp": stamp, "frame_id": "map"}})
+    with pytest.raises(codec.DecodeError) as error:
+        codec.decode(payload, schemas.GlobalLocalizationCommand)
+    assert error.value.kind == "invalid"
+
+
+def test_image_headers_declaring_too_many_pixels_are_refused_unread():
+    header = schemas.ImageHeader(stamp=0.0, encoding="rgb8", width=4, height=3, intrinsics=INTRINSICS)
+    frame = codec.encode_image(header, np.zeros((3, 4, 3), dtype=np.uint8))
+    assert codec.decode_image(frame, max_pixels=12)[0] == header
+    with pytest.raises(codec.DecodeError) as error:
+        codec.decode_image(frame, max_pixels=11)
+    assert error.value.kind == "image_too_large"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 
 import msgpack
 import pytest
@@ -31,6 +32,8 @@ from services.poses import convert_covariance, increment_to_map, map_to_metric, 
 from services.filter_loop.__main__ import FilterProcessConfig, build_loop
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
+from services.filter_loop.state_file import SavedPose
+from services.filter_loop.state_writer import StateWriter
 from services.nerf_worker.service import NerfWorker
 from services.sensor_ingest.events import GroundTruthEvent
 from services.sensor_ingest.service import event_message
@@ -220,6 +223,7 @@ def test_initial_pose_command_and_restart_from_the_saved_state(world, generator,
     first.collect(first.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
     published = torch.tensor(first.poses[-1].T_world_cam, dtype=torch.float64)
     assert float(translation_error(published, target)) < 0.05
+    first.loop.close()  # the writer thread writes the last pose on close
     # The restarted filter resumes from the saved pose and applies the odometry since (1 m forward).
     restarted = Harness(world, config, seed=1)
     assert restarted.loop.running
@@ -228,6 +232,67 @@ def test_initial_pose_command_and_restart_from_the_saved_state(world, generator,
     resumed = torch.tensor(restarted.poses[-1].T_world_cam, dtype=torch.float64)
     assert float(translation_error(resumed, published @ moved)) < 0.05
     assert restarted.poses[-1].spread < 0.2
+
+
+def test_results_with_other_ids_unknown_or_late_requests_are_told_apart(world, generator):
+    harness = Harness(world)
+    harness.add_worker("w1")
+    eye = torch.eye(4, dtype=torch.float64)
+    harness.collect(harness.loop.handle_odometry(_odometry(0.0, eye)))
+    harness.collect(harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator))))
+    harness.tick()
+    (_worker, request), = harness.requests
+    result = NerfWorker(world, "w1").handle(request)
+    harness.loop.handle_result(encode(result.model_copy(update={"ids": [i + 1 for i in result.ids]})))
+    harness.loop.handle_result(encode(result.model_copy(update={"request_id": "never-issued"})))
+    harness.answer(request)  # completes the update
+    harness.answer(request)  # the same result again: late, not bad
+    counters = harness.loop.counters()
+    assert counters["bad_result_mismatch"] == 1 and counters["bad_unknown_request"] == 1
+    assert counters["late_results"] == 1 and counters["updates_merged"] == 1
+
+
+def test_unwritable_state_file_is_counted_and_the_poses_go_on(world, tmp_path):
+    """A state file in a missing folder: every save fails, is counted, and no pose is lost."""
+    config = FilterLoopConfig(state_file=str(tmp_path / "missing" / "filter_state.json"), state_save_rate=1000.0)
+    harness = Harness(world, config)
+    eye = torch.eye(4, dtype=torch.float64)
+    for k in range(20):
+        harness.collect(harness.loop.handle_odometry(_odometry(k / 15, eye)))
+    harness.loop.close()
+    assert len(harness.poses) == 20
+    failures = harness.loop.counters()["state_save_failures"]
+    assert 1 <= failures <= 20 and harness.loop._state_writer.saved == 0
+    status = decode(harness.loop.tick()[-1][1], FilterStatus)
+    assert status.counters["state_save_failures"] == failures
+
+
+def test_state_writer_saves_the_newest_pose_at_a_bounded_rate(tmp_path):
+    """An injected writer: failures are counted, never raised; offers between two saves are replaced."""
+    written: list[float] = []
+    entered, release = threading.Event(), threading.Event()
+
+    def slow_failing_save(_path, pose: SavedPose) -> None:
+        entered.set()
+        release.wait()
+        written.append(pose.stamp)
+        if len(written) == 1:
+            raise PermissionError("read-only file system")
+
+    # At most one save per 1000 s: the first offer is saved at once, the rest wait for close.
+    writer = StateWriter(tmp_path / "state.json", rate=1e-3, save=slow_failing_save)
+    eye = torch.eye(4, dtype=torch.float64)
+    writer.offer(SavedPose(0.0, eye, torch.eye(6, dtype=torch.float64), eye))
+    assert entered.wait(10.0)
+    for stamp in range(1, 100):
+        writer.offer(SavedPose(float(stamp), eye, torch.eye(6, dtype=torch.float64), eye))
+    release.set()
+    writer.close()
+    # The first save failed and was counted; close wrote the newest, stamp 99; stamps 1–98 were replaced.
+    assert written == [0.0, 99.0]
+    assert writer.failures == 1 and writer.saved == 1
+    with pytest.raises(ValueError, match="expected > 0"):
+        StateWriter(tmp_path / "state.json", rate=0.0)
 
 
 def test_odometry_stamps_far_in_the_past_start_a_new_odometry_session(world):

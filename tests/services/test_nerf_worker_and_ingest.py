@@ -98,6 +98,13 @@ def test_world_stream_is_time_ordered_with_the_configured_rates(world, generator
     assert key == "locnerf/r/sensors/odom" and decode(payload, Odometry).stamp == 0.0
 
 
+def test_world_stream_with_distinct_frames_sends_the_first_ones_again(world, generator):
+    config = WorldSourceConfig(duration=1.0, odometry_rate=15.0, camera_rate=5.0, distinct_frames=2)
+    frames = [e.pixels for e in world_events(world, config, generator) if isinstance(e, ImageEvent)]
+    assert len(frames) == 5 and not (frames[0] == frames[1]).all()
+    assert all(frames[k] is frames[k % 2] for k in range(2, 5))
+
+
 def test_pacer_waits_for_scaled_stamps():
     now = [100.0]
     sleeps: list[float] = []

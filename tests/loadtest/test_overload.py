@@ -1,0 +1,23 @@
+"""``locnerf loadtest --overload``, short: odometry and images 10× faster for a few seconds lose no odometry."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+
+def test_overload_loses_no_odometry_and_replaces_images(tmp_path):
+    command = [
+        sys.executable, "-m", "locnerf.cli.main", "loadtest", "--overload", "10", "--particles", "60", "--pixels", "16",
+        "--camera-rate", "5", "--duration", "3", "--warmup", "1", "--memory-period", "1", "--device", "cpu", "--out", str(tmp_path), "--json",
+    ]
+    finished = subprocess.run(command, capture_output=True, text=True, timeout=240)
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    report = json.loads(finished.stdout.strip().splitlines()[-1])
+    assert report["overload"] == 10.0 and report["lost_messages"] == 0, report["lost_detail"]
+    # Every odometry message of the window (sent at 150 Hz) has its pose: lost_detail["poses"] == 0 above.
+    assert report["odometry_messages"] > 0 and report["lost_detail"]["poses"] == 0
+    assert report["images_replaced"] > 0 and report["camera_frames"] == 0  # images are counted by the filter, not observed
+    filter_memory = report["processes"]["filter"]
+    assert filter_memory["rss_start_mb"] <= filter_memory["rss_max_mb"] and filter_memory["rss_end_mb"] <= filter_memory["rss_max_mb"]
