@@ -101,15 +101,21 @@ class Stack:
         return "\n".join(f"== {path.name}\n" + "\n".join(path.read_text().splitlines()[-15:]) for path in sorted(self.logs.glob("*.log")))
 
 
+def watch(bus) -> Observer:
+    """An Observer fed by ``bus``'s subscriptions to the poses, ground truth, status and results."""
+    observer = Observer()
+    topics = {"pose": keys.POSE, "truth": keys.GROUND_TRUTH, "status": keys.STATUS, "result": keys.UPDATE_RESULT}
+    for kind, topic in topics.items():
+        bus.subscribe(keys.key(ROBOT, topic), lambda _k, payload, kind=kind: observer.on(kind, payload))
+    return observer
+
+
 @pytest.fixture
 def hub(tmp_path) -> Iterator[tuple[Stack, Observer, object]]:
     """(stack, observer, hub bus): a listening hub session and a process launcher."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     bus = open_bus(TransportConfig(listen=(endpoint,)))
-    observer = Observer()
-    topics = {"pose": keys.POSE, "truth": keys.GROUND_TRUTH, "status": keys.STATUS, "result": keys.UPDATE_RESULT}
-    for kind, topic in topics.items():
-        bus.subscribe(keys.key(ROBOT, topic), lambda _k, payload, kind=kind: observer.on(kind, payload))
+    observer = watch(bus)
     logs = tmp_path / "logs"
     logs.mkdir()
     stack = Stack(endpoint, logs)
@@ -128,4 +134,4 @@ def wait_for(condition, timeout: float, what: str, stack: Stack) -> None:
         raise AssertionError(f"{error}\n{stack.log_tail()}") from None
 
 
-__all__ = ["ROBOT", "Observer", "Stack", "wait_for"]
+__all__ = ["ROBOT", "Observer", "Stack", "wait_for", "watch"]
