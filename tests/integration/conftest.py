@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,6 +29,7 @@ class Observer:
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.poses: list[PoseEstimate] = []
+        self.pose_arrivals: list[float] = []  # monotonic seconds at which each pose arrived
         self.truth: dict[float, PoseStamped] = {}
         self.status: FilterStatus | None = None
         self.results: list[UpdateResult] = []
@@ -43,6 +45,7 @@ class Observer:
         with self.lock:
             if kind == "pose":
                 self.poses.append(decode(payload, PoseEstimate))
+                self.pose_arrivals.append(time.monotonic())
             elif kind == "truth":
                 message = decode(payload, PoseStamped)
                 self.truth[message.stamp] = message
