@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 import os
 
+import torch
+
 from locnerf.messages.schemas import PoseEstimate
 
 ODOMETRY_RATE = 15.0
@@ -20,6 +22,11 @@ def poses_lost(poses: list[PoseEstimate], start: float, end: float, rate: float 
     odometry message, so a stamp gap of k periods lost k - 1 poses."""
     stamps = sorted({pose.stamp for pose in poses if start <= pose.stamp <= end})
     return sum(max(0, round((b - a) * rate) - 1) for a, b in zip(stamps, stamps[1:]))
+
+
+def covariance_trace(pose: PoseEstimate) -> float:
+    """Trace of a pose's 6×6 covariance (rad² + m²)."""
+    return float(torch.tensor(pose.covariance, dtype=torch.float64).diagonal().sum())
 
 
 def report(test: str, **figures: object) -> None:

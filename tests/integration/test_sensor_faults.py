@@ -24,7 +24,7 @@ from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, Odometry
 from services.sensor_ingest.service import Pacer, event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from tests.integration.conftest import ROBOT, wait_for
-from tests.integration.fault_report import poses_lost, report
+from tests.integration.fault_report import covariance_trace, poses_lost, report
 
 RATE = 15  # odometry ticks per second; images are every third tick
 
@@ -71,10 +71,6 @@ class Schedule:
             if tick == jumps + 6:
                 return dataclasses.replace(event, stamp=event.stamp - 3.0)
         return event
-
-
-def covariance_trace(pose) -> float:
-    return float(torch.tensor(pose.covariance).diagonal().sum())
 
 
 def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
