@@ -32,6 +32,7 @@ class Observer:
         self.pose_arrivals: list[float] = []  # monotonic seconds at which each pose arrived
         self.truth: dict[float, PoseStamped] = {}
         self.status: FilterStatus | None = None
+        self.statuses = 0  # status messages received
         self.results: list[UpdateResult] = []
         self.undecodable = 0
 
@@ -51,6 +52,7 @@ class Observer:
                 self.truth[message.stamp] = message
             elif kind == "status":
                 self.status = decode(payload, FilterStatus)
+                self.statuses += 1
             else:
                 self.results.append(decode(payload, UpdateResult))
 

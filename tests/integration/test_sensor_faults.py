@@ -90,7 +90,13 @@ def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
 
     truth: dict[float, torch.Tensor] = {}
     merged_at: dict[str, int] = {}
-    marks = {schedule.tick(schedule.image_gap[0] + 1.0): "image_gap_early", schedule.tick(schedule.image_gap[1]): "image_gap_end"}
+    statuses_at: dict[str, int] = {}
+    marks = {
+        schedule.tick(schedule.odometry_gap[0] + 0.5): "odometry_gap_early",
+        schedule.tick(schedule.odometry_gap[1] - 0.1): "odometry_gap_end",
+        schedule.tick(schedule.image_gap[0] + 1.0): "image_gap_early",
+        schedule.tick(schedule.image_gap[1]): "image_gap_end",
+    }
 
     def stream() -> None:
         for event in Pacer(1.0).paced(world_events(world, source, torch.Generator().manual_seed(0))):
@@ -98,6 +104,7 @@ def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
                 truth[event.stamp] = event.T_world_cam
                 if schedule.tick(event.stamp) in marks:
                     merged_at[marks[schedule.tick(event.stamp)]] = observer.counter("updates_merged")
+                    statuses_at[marks[schedule.tick(event.stamp)]] = observer.statuses
             delivered = schedule.apply(event)
             if delivered is not None:
                 bus.publish(*event_message(ROBOT, delivered))
@@ -123,6 +130,8 @@ def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
     # stream resumes at rate, the particles carried across the outage by the odometry increment.
     gap_start, gap_end = schedule.odometry_gap
     assert between(gap_start + 0.01, gap_end - 0.01) == []
+    status_during_gap = statuses_at["odometry_gap_end"] - statuses_at["odometry_gap_early"]
+    assert status_during_gap >= 1  # the filter is alive and reports at 1 Hz through the outage
     after_gap = between(gap_end, gap_end + 3.0)
     assert len(after_gap) >= 0.8 * 3 * RATE
     assert counters.get("bad_image_ahead", 0) >= 1, counters  # images during the outage cannot be placed
@@ -147,6 +156,7 @@ def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
         "sensor_faults",
         odometry_gap_s=schedule.gap,
         poses_during_odometry_gap=len(between(gap_start + 0.01, gap_end - 0.01)),
+        status_messages_during_odometry_gap=status_during_gap,
         images_dropped_ahead=counters.get("bad_image_ahead", 0),
         error_after_odometry_gap_m=round(worst_error(between(gap_end, schedule.image_gap[0])), 3),
         covariance_trace_growth=round(covariance_trace(late) / covariance_trace(early), 2),
