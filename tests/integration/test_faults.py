@@ -77,7 +77,7 @@ def test_services_reconnect_after_the_router_restarts(hub, tmp_path):
         start_services(stack, tmp_path, client_environment(stack, endpoint))
         wait_for(lambda: merged(observer) >= 3, 150, "merged updates through the router", stack)
 
-        gaps, lost = [], []
+        gaps, lost, accepting = [], [], []
         for restart in range(2):
             wait_for(lambda: len(observer.poses) >= 15, 30, "poses", stack)
             last_before, stamp_before = observer.pose_arrivals[-1], observer.poses[-1].stamp
@@ -85,6 +85,8 @@ def test_services_reconnect_after_the_router_restarts(hub, tmp_path):
             killed = time.monotonic()
             start_router(stack, "router", endpoint)
             count = len(observer.poses)
+            open_client(endpoint).close()  # a probe: the new router accepts sessions (retried every 0.3 s)
+            accepting.append(round(time.monotonic() - killed, 2))
             wait_for(lambda: len(observer.poses) >= count + 30, 90, f"poses after router restart {restart + 1}", stack)
             with observer.lock:
                 resumed = observer.pose_arrivals[count]
@@ -95,6 +97,6 @@ def test_services_reconnect_after_the_router_restarts(hub, tmp_path):
             wait_for(lambda: merged(observer) >= before + 3 and observer.workers() == ["wa"], 60, "updates after the restart", stack)
             assert all(stack.processes[name].poll() is None for name in ("filter", "wa", "ingest"))
             assert killed - last_before < 1.0  # the poses were flowing when the router died
-        report("router_restart", restarts=2, pose_gap_s=gaps, poses_lost=lost)
+        report("router_restart", restarts=2, router_accepting_after_s=accepting, pose_gap_s=gaps, poses_lost=lost)
     finally:
         robot.close()

@@ -116,9 +116,11 @@ def test_faults_garbage_worker_kill_and_filter_restart(hub, tmp_path):
         gap = observer.pose_arrivals[restart_at] - observer.pose_arrivals[restart_at - 1]
     assert resumed.spread < 0.3, f"restarted with spread {resumed.spread} m: not from the saved pose"
     assert resumed_error and resumed_error[0][0] < 0.5
-    # The covariance is the saved one (plus one prediction step), far from a global start's (traces of m²).
+    # The covariance is the saved one plus one prediction step, far from a global start's (the room's
+    # extent and unknown yaw: a trace of order 1). The restarted filter starts at full prediction
+    # noise (the annealing stage is not saved), so that step may add several times a converged trace.
     ratio = covariance_trace(resumed) / covariance_trace(last)
-    assert 0.2 < ratio < 5.0, f"resumed covariance trace {covariance_trace(resumed):.3g} vs {covariance_trace(last):.3g} saved"
+    assert 0.5 * covariance_trace(last) < covariance_trace(resumed) < 0.01, f"resumed covariance trace {covariance_trace(resumed):.3g} vs {covariance_trace(last):.3g} saved"
     report(
         "filter_restart",
         restarts=1,
