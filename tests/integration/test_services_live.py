@@ -117,7 +117,7 @@ def test_faults_garbage_worker_kill_and_filter_restart(hub, tmp_path):
     assert resumed.spread < 0.3, f"restarted with spread {resumed.spread} m: not from the saved pose"
     assert resumed_error and resumed_error[0][0] < 0.5
     # The covariance is the saved one plus one prediction step, far from a global start's (the room's
-    # extent and unknown yaw: a trace of order 1). The restarted filter starts at full prediction
+    # extent and unknown yaw: a trace of 10.3 in the procedural world). The restarted filter starts at full prediction
     # noise (the annealing stage is not saved), so that step may add several times a converged trace.
     ratio = covariance_trace(resumed) / covariance_trace(last)
     assert 0.5 * covariance_trace(last) < covariance_trace(resumed) < 0.01, f"resumed covariance trace {covariance_trace(resumed):.3g} vs {covariance_trace(last):.3g} saved"
