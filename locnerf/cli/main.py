@@ -18,6 +18,7 @@ SUBCOMMAND_MODULES = (
     "locnerf.cli.echo",
     "locnerf.cli.send",
     "locnerf.cli.loadtest",
+    "locnerf.cli.certs",
     "locnerf.cli.fuzz",
 )
 

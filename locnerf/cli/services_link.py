@@ -16,11 +16,12 @@ SERVICE_MODULES = {
     "ingest": "services.sensor_ingest.__main__",
     "filter": "services.filter_loop.__main__",
     "worker": "services.nerf_worker.__main__",
+    "router": "services.router.__main__",
 }
 
 
 def service_module(name: str) -> ModuleType:
-    """The ``__main__`` module of a service (``ingest``, ``filter`` or ``worker``)."""
+    """The ``__main__`` module of a service (``ingest``, ``filter``, ``worker`` or ``router``)."""
     if name not in SERVICE_MODULES:
         raise ValueError(f"service {name!r}: expected one of {sorted(SERVICE_MODULES)}")
     return importlib.import_module(SERVICE_MODULES[name])

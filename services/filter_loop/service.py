@@ -61,6 +61,13 @@ class FilterLoopConfig(BaseModel):
     max_in_flight: int = Field(2, ge=1, description="Updates in flight at once (2 keeps the workers busy while the filter merges).")
     max_image_age: float = Field(1.0, gt=0, description="Images older than the newest odometry by more than this are dropped, seconds.")
     odometry_horizon: float = Field(5.0, gt=0, description="Seconds of odometry kept to carry particles to an image stamp.")
+    odometry_resync: int = Field(
+        3,
+        ge=1,
+        description="Consecutive odometry messages stamped before the newest accepted one (and increasing among themselves) "
+        "after which the odometry clock is taken as stepped back: a new odometry session starts, as after a restart. "
+        "A single stamp that jumped ahead thus blocks the pose stream for this many messages, not until the clock catches up.",
+    )
     particles_rate: float = Field(2.0, gt=0, description="Particle clouds published per second.")
     status_rate: float = Field(1.0, gt=0, description="Status messages published per second.")
     state_file: str = Field("", description="File where the last pose is saved and resumed from on restart (empty: none).")
@@ -125,6 +132,7 @@ class FilterLoop:
         self.images_received = 0
         self.inbox_dropped = 0
         self.odometry_restarts = 0
+        self._stepped_back: list[float] = []
         self._image: tuple[ImageHeader, np.ndarray] | None = None
         self._last_particles = self._last_status = -float("inf")
         self._state_file = Path(config.state_file) if config.state_file else None
@@ -201,12 +209,11 @@ class FilterLoop:
             pose = torch.tensor(message.T_odom_body, dtype=torch.float64)
             validate_poses(pose, name="T_odom_body")
             pose = pose @ self.T_body_cam  # T_odom_cam: the filter moves camera poses
-            latest = self.history.latest_stamp
-            if latest is not None and message.stamp < latest - self.config.odometry_horizon:
-                logger.warning("odometry stamps restarted (%.3f after %.3f): treating it as a new odometry session", message.stamp, latest)
+            if self._odometry_clock_restarted(message.stamp):
                 self.history.clear()
                 self.odometry_restarts += 1
             increment = self.history.append(message.stamp, pose)
+            self._stepped_back.clear()
         except DecodeError as error:
             self.bad.record(error.kind, error.reason)
             return []
@@ -214,6 +221,7 @@ class FilterLoop:
             self.bad.record("invalid_odometry", str(error))
             return []
         except ValueError as error:
+            self._stepped_back.append(message.stamp)
             self.bad.record("stamp_backwards", str(error))
             return []
         self.rates["odometry"].tick()
@@ -224,6 +232,25 @@ class FilterLoop:
         self._estimate = carry_estimate(self._estimate, increment, self.localizer.noise_sigma(), self.localizer.noise_pivot())
         self._pending_increment, self._prediction_pending = increment, True
         return [self._pose_message(message.stamp)]
+
+    def _odometry_clock_restarted(self, stamp: float) -> bool:
+        """Whether ``stamp`` starts a new odometry session: it lies more than ``odometry_horizon``
+        before the newest accepted stamp (a restarted source), or it ends a run of
+        ``odometry_resync`` increasing stamps all before it (the clock stepped back, or the newest
+        accepted stamp had jumped ahead)."""
+        latest = self.history.latest_stamp
+        if latest is None or stamp > latest:
+            return False
+        run = self._stepped_back
+        if run and stamp <= run[-1]:
+            run.clear()  # not increasing: a stray old message, not a clock that stepped back
+        if stamp < latest - self.config.odometry_horizon:
+            logger.warning("odometry stamps restarted (%.3f after %.3f): treating it as a new odometry session", stamp, latest)
+            return True
+        if len(run) + 1 >= self.config.odometry_resync:
+            logger.warning("odometry clock stepped back (%d stamps from %.3f before %.3f): new odometry session", len(run) + 1, run[0] if run else stamp, latest)
+            return True
+        return False
 
     def _pose_message(self, stamp: float) -> tuple[str, bytes]:
         estimate = self._estimate
@@ -255,6 +282,10 @@ class FilterLoop:
         latest = self.history.latest_stamp
         if latest is not None and header.stamp < latest - self.config.max_image_age:
             self.bad.record("image_too_old", f"image stamp {header.stamp} is more than {self.config.max_image_age} s older than the odometry ({latest})")
+            return []
+        if latest is not None and header.stamp > latest + self.config.max_image_age:
+            # No odometry places the particles at this stamp (odometry stopped, or the image's clock jumped ahead).
+            self.bad.record("image_ahead", f"image stamp {header.stamp} is more than {self.config.max_image_age} s after the newest odometry ({latest})")
             return []
         if self._image is not None:
             self.images_replaced += 1

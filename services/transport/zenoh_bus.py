@@ -8,7 +8,7 @@ import logging
 import zenoh
 
 from services.transport.bus import AttachedCallback, LivelinessCallback, QueryHandler, Reply, SampleCallback
-from services.transport.config import TransportConfig
+from services.transport.config import TlsConfig, TransportConfig
 
 logger = logging.getLogger(__name__)
 
@@ -21,7 +21,24 @@ def zenoh_config(config: TransportConfig) -> zenoh.Config:
     conf.insert_json5("connect/endpoints", json.dumps(list(config.connect)))
     if config.mode == "peer":
         conf.insert_json5("listen/endpoints", json.dumps(list(config.listen)))
+    if config.tls is not None:
+        apply_tls(conf, config.tls, listens=config.mode == "peer")
     return conf
+
+
+def apply_tls(conf: zenoh.Config, tls: TlsConfig, listens: bool) -> None:
+    """Set zenoh's ``transport/link/tls`` keys (zenoh 1.x names) from ``tls``.
+
+    The certificate is this process's identity both as a listener (``listen_*``, only when the
+    session listens) and, with mutual TLS, as a connecting client (``connect_*``)."""
+    settings: dict[str, object] = {"root_ca_certificate": tls.root_ca, "enable_mtls": tls.mutual}
+    if tls.certificate:
+        if listens:
+            settings |= {"listen_certificate": tls.certificate, "listen_private_key": tls.key}
+        if tls.mutual:
+            settings |= {"connect_certificate": tls.certificate, "connect_private_key": tls.key}
+    for name, value in settings.items():
+        conf.insert_json5(f"transport/link/tls/{name}", json.dumps(value))
 
 
 class _Undeclare:

@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,8 +29,10 @@ class Observer:
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.poses: list[PoseEstimate] = []
+        self.pose_arrivals: list[float] = []  # monotonic seconds at which each pose arrived
         self.truth: dict[float, PoseStamped] = {}
         self.status: FilterStatus | None = None
+        self.statuses = 0  # status messages received
         self.results: list[UpdateResult] = []
         self.undecodable = 0
 
@@ -43,11 +46,13 @@ class Observer:
         with self.lock:
             if kind == "pose":
                 self.poses.append(decode(payload, PoseEstimate))
+                self.pose_arrivals.append(time.monotonic())
             elif kind == "truth":
                 message = decode(payload, PoseStamped)
                 self.truth[message.stamp] = message
             elif kind == "status":
                 self.status = decode(payload, FilterStatus)
+                self.statuses += 1
             else:
                 self.results.append(decode(payload, UpdateResult))
 
@@ -101,15 +106,21 @@ class Stack:
         return "\n".join(f"== {path.name}\n" + "\n".join(path.read_text().splitlines()[-15:]) for path in sorted(self.logs.glob("*.log")))
 
 
+def watch(bus) -> Observer:
+    """An Observer fed by ``bus``'s subscriptions to the poses, ground truth, status and results."""
+    observer = Observer()
+    topics = {"pose": keys.POSE, "truth": keys.GROUND_TRUTH, "status": keys.STATUS, "result": keys.UPDATE_RESULT}
+    for kind, topic in topics.items():
+        bus.subscribe(keys.key(ROBOT, topic), lambda _k, payload, kind=kind: observer.on(kind, payload))
+    return observer
+
+
 @pytest.fixture
 def hub(tmp_path) -> Iterator[tuple[Stack, Observer, object]]:
     """(stack, observer, hub bus): a listening hub session and a process launcher."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     bus = open_bus(TransportConfig(listen=(endpoint,)))
-    observer = Observer()
-    topics = {"pose": keys.POSE, "truth": keys.GROUND_TRUTH, "status": keys.STATUS, "result": keys.UPDATE_RESULT}
-    for kind, topic in topics.items():
-        bus.subscribe(keys.key(ROBOT, topic), lambda _k, payload, kind=kind: observer.on(kind, payload))
+    observer = watch(bus)
     logs = tmp_path / "logs"
     logs.mkdir()
     stack = Stack(endpoint, logs)
@@ -128,4 +139,4 @@ def wait_for(condition, timeout: float, what: str, stack: Stack) -> None:
         raise AssertionError(f"{error}\n{stack.log_tail()}") from None
 
 
-__all__ = ["ROBOT", "Observer", "Stack", "wait_for"]
+__all__ = ["ROBOT", "Observer", "Stack", "wait_for", "watch"]

@@ -1,53 +1,84 @@
-"""docker-compose.yml: valid against the compose specification, and its services, started locally
-with the file's own commands, environment and config mounts, reach each other and localize.
+"""docker-compose.yml (and its TLS override docker-compose.tls.yml): valid against the compose
+specification, and its services, started locally with the files' own commands, environment and
+mounts, reach each other and localize.
 
-No Docker engine runs here, so the zenohd router is stood in for by the test's hub session (a
-peer that routes for clients), at the endpoint the file names with its host replaced.
+No Docker engine runs here, so the zenohd router is stood in for: by the test's hub session (a
+peer that routes for clients) for the plain file, and by ``locnerf run router`` on the router's
+own TLS and access-control file for the override, at the endpoint the files name with its host
+replaced; the override's certificate mounts point at certificates made by ``locnerf certs``.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+import zenoh
 from ruamel.yaml import YAML
 
-from tests.integration.conftest import REPO, wait_for
+from locnerf.cli.certs import make_certificates
+from tests.integration.conftest import REPO, Observer, Stack, wait_for, watch
+from tests.integration.routing import SECURE, open_client, start_router, tls_for
+from tests.services.helpers import free_port
 
 COMPOSE = REPO / "docker-compose.yml"
+COMPOSE_TLS = REPO / "docker-compose.tls.yml"
 SERVICES = ("worker", "filter", "ingest")
+ROUTER_HOST = "zenohd"
 
 
-def test_compose_file_is_valid_against_the_compose_specification():
+@pytest.mark.parametrize("path", [COMPOSE, COMPOSE_TLS], ids=["compose", "tls-override"])
+def test_compose_file_is_valid_against_the_compose_specification(path):
     checker = Path(sys.executable).with_name("check-jsonschema")
-    result = subprocess.run(
-        [str(checker), "--builtin-schema", "vendor.compose-spec", str(COMPOSE)], capture_output=True, text=True, timeout=120
-    )
+    result = subprocess.run([str(checker), "--builtin-schema", "vendor.compose-spec", str(path)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def merged_services(*paths: Path) -> dict[str, dict]:
+    """The services of compose files merged as ``docker compose -f a -f b`` does for the fields used
+    here: environment by variable, volumes by container path, anything else replaced."""
+    merged: dict[str, dict] = {}
+    for path in paths:
+        for name, service in YAML(typ="safe").load(path.read_text())["services"].items():
+            current = merged.setdefault(name, {})
+            for field, value in service.items():
+                if field == "environment":
+                    current[field] = current.get(field, {}) | value
+                elif field == "volumes":
+                    by_target = {volume.split(":")[1]: volume for volume in current.get(field, [])}
+                    current[field] = list((by_target | {volume.split(":")[1]: volume for volume in value}).values())
+                else:
+                    current[field] = value
+    return merged
 
 
 def _local_path(container_path: str, mounts: dict[str, Path]) -> str:
     for target, source in mounts.items():
+        if container_path == target:
+            return str(source)
         if container_path.startswith(target + "/"):
             return str(source / container_path[len(target) + 1 :])
     return container_path
 
 
-def test_compose_services_start_locally_and_reach_each_other(hub, tmp_path):
-    stack, observer, _ = hub
-    compose = YAML(typ="safe").load(COMPOSE.read_text())
-    router_host = "zenohd"
-    assert router_host in compose["services"]
+def start_compose_services(stack: Stack, services: dict[str, dict], endpoint: str, tmp_path: Path, certs: Path | None = None) -> Path:
+    """Start worker, filter and ingest with the files' commands, environment and mounts (the router
+    host replaced by ``endpoint``'s, ``./deploy/certs`` by ``certs``); returns the state folder."""
     state_dir = tmp_path / "state"
     state_dir.mkdir()
     for name in SERVICES:
-        service = compose["services"][name]
+        service = services[name]
         mounts: dict[str, Path] = {}
         for volume in service["volumes"]:
             source, target = volume.split(":")[:2]
-            mounts[target] = (REPO / source).resolve() if source.startswith(".") else state_dir
+            if source.startswith("./deploy/certs/"):
+                mounts[target] = certs / source.removeprefix("./deploy/certs/")
+            else:
+                mounts[target] = (REPO / source).resolve() if source.startswith(".") else state_dir
         # The state file path in the config points into a named volume: copy the config with it mapped.
         arguments = [_local_path(a, mounts) for a in service["command"][1:]]
         config_index = arguments.index("--config") + 1
@@ -56,11 +87,47 @@ def test_compose_services_start_locally_and_reach_each_other(hub, tmp_path):
         config_copy.write_text(config_copy.read_text().replace("/var/lib/locnerf", str(state_dir)).replace('robot_id = "robot"', 'robot_id = "itest"'))
         arguments[config_index] = str(config_copy)
         environment = dict(stack.environment)
-        environment |= {k: v.replace(f"{router_host}:7447", stack.endpoint.removeprefix("tcp/")) for k, v in service["environment"].items()}
+        for key, value in service["environment"].items():
+            environment[key] = _local_path(value.replace(f"{ROUTER_HOST}:7447", endpoint.split("/", 1)[1]), mounts)
         assert service["command"][0] == "locnerf" and environment["LOCNERF_ZENOH_MODE"] == "client"
+        assert environment["LOCNERF_ZENOH_CONNECT"] == endpoint
         stack.start(name, *arguments, environment=environment)
+    return state_dir
+
+
+def wait_for_localization(stack: Stack, observer: Observer, state_dir: Path) -> None:
     wait_for(lambda: observer.counter("updates_merged") >= 3 and len(observer.poses) >= 15, 180, "poses and merged updates", stack)
     assert (state_dir / "filter_state.json").is_file()
+
+
+def test_compose_services_start_locally_and_reach_each_other(hub, tmp_path):
+    stack, observer, _ = hub
+    services = merged_services(COMPOSE)
+    assert ROUTER_HOST in services
+    state_dir = start_compose_services(stack, services, stack.endpoint, tmp_path)
+    wait_for_localization(stack, observer, state_dir)
+
+
+def test_compose_tls_override_services_reach_each_other_through_the_secure_router(hub, tmp_path):
+    stack, _, _ = hub
+    services = merged_services(COMPOSE, COMPOSE_TLS)
+    assert services[ROUTER_HOST]["command"] == ["-c", "/etc/zenoh/router-tls.json5"]
+    # zenohd finds the files its configuration names where the override mounts them.
+    router_files = zenoh.Config.from_file(str(SECURE))
+    mounted = {volume.split(":")[1] for volume in services[ROUTER_HOST]["volumes"]}
+    for name in ("root_ca_certificate", "listen_certificate", "listen_private_key"):
+        assert json.loads(router_files.get_json(f"transport/link/tls/{name}")) in mounted, name
+    certs = tmp_path / "certs"
+    make_certificates(certs)
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    start_router(stack, "router", endpoint, certs)
+    robot = open_client(endpoint, tls_for(certs, "robot"))
+    try:
+        observer = watch(robot)
+        state_dir = start_compose_services(stack, services, endpoint, tmp_path, certs)
+        wait_for_localization(stack, observer, state_dir)
+    finally:
+        robot.close()
 
 
 def test_ros2_override_is_valid_and_runs_the_filter_with_ros2_and_no_synthetic_ingest():

@@ -18,6 +18,7 @@ import torch
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.messages import keys
 from tests.integration.conftest import REPO, ROBOT, wait_for
+from tests.integration.fault_report import covariance_trace, poses_lost, report
 
 TRACKED_TRANSLATION = 0.15
 TRACKED_ROTATION_DEG = 3.0
@@ -103,16 +104,33 @@ def test_faults_garbage_worker_kill_and_filter_restart(hub, tmp_path):
     wait_for(lambda: observer.workers() == ["wa", "wb"], 60, "wb to rejoin", stack)
     wait_for(lambda: tracking(observer), 60, "tracking with both workers", stack)
 
-    # Restart the filter: it resumes from its last pose, not from scratch.
+    # Restart the filter: it resumes from its last pose and covariance, not from scratch.
     stack.kill("filter")
     restart_at = len(observer.poses)
+    last = observer.poses[-1]
     stack.start("filter2", "run", "filter", "--robot-id", ROBOT, "--device", "cpu", "--config", str(filter_config(tmp_path)))
     wait_for(lambda: len(observer.poses) > restart_at, 120, "poses from the restarted filter", stack)
     with observer.lock:
         resumed = observer.poses[restart_at]
         resumed_error = errors(observer, [resumed])
+        gap = observer.pose_arrivals[restart_at] - observer.pose_arrivals[restart_at - 1]
     assert resumed.spread < 0.3, f"restarted with spread {resumed.spread} m: not from the saved pose"
     assert resumed_error and resumed_error[0][0] < 0.5
+    # The covariance is the saved one plus one prediction step, far from a global start's (the room's
+    # extent and unknown yaw: a trace of 10.3 in the procedural world). The restarted filter starts at full prediction
+    # noise (the annealing stage is not saved), so that step may add several times a converged trace.
+    ratio = covariance_trace(resumed) / covariance_trace(last)
+    assert 0.5 * covariance_trace(last) < covariance_trace(resumed) < 0.01, f"resumed covariance trace {covariance_trace(resumed):.3g} vs {covariance_trace(last):.3g} saved"
+    report(
+        "filter_restart",
+        restarts=1,
+        pose_gap_s=round(gap, 2),
+        poses_lost=poses_lost(observer.poses, last.stamp, resumed.stamp),
+        first_pose_error_m=round(resumed_error[0][0], 3),
+        covariance_trace_ratio=round(ratio, 2),
+        spread_before_m=round(last.spread, 4),
+        spread_after_m=round(resumed.spread, 4),
+    )
 
 
 def test_send_and_echo_commands(hub, tmp_path):

@@ -304,6 +304,41 @@ def test_odometry_stamps_far_in_the_past_start_a_new_odometry_session(world):
     assert counters["odometry_restarts"] == 1 and counters["bad_stamp_backwards"] == 1 and len(harness.poses) == 3
 
 
+def test_a_stamp_that_jumped_ahead_blocks_the_pose_stream_only_for_the_resync_run(world):
+    harness = Harness(world, FilterLoopConfig(odometry_horizon=5.0, odometry_resync=3))
+    eye = torch.eye(4, dtype=torch.float64)
+    # 1.0 jumps 3 s ahead (within the horizon); the clock goes on from 0.2: three stamps before 4.0.
+    for stamp in (0.0, 0.1, 4.0, 0.2, 0.3, 0.4, 0.5, 0.6):
+        harness.collect(harness.loop.handle_odometry(_odometry(stamp, eye)))
+    counters = harness.loop.counters()
+    assert counters["bad_stamp_backwards"] == 2 and counters["odometry_restarts"] == 1
+    assert [pose.stamp for pose in harness.poses] == [0.0, 0.1, 4.0, 0.4, 0.5, 0.6]
+
+
+def test_stray_old_odometry_is_dropped_without_resynchronising(world):
+    harness = Harness(world, FilterLoopConfig(odometry_resync=3))
+    eye = torch.eye(4, dtype=torch.float64)
+    # Old duplicates out of order (not increasing among themselves) never restart the session.
+    for stamp in (1.0, 1.1, 1.2, 0.9, 0.8, 0.7, 0.7, 1.3):
+        harness.collect(harness.loop.handle_odometry(_odometry(stamp, eye)))
+    counters = harness.loop.counters()
+    assert counters["bad_stamp_backwards"] == 4 and counters["odometry_restarts"] == 0
+    assert [pose.stamp for pose in harness.poses] == [1.0, 1.1, 1.2, 1.3]
+
+
+def test_an_image_stamped_after_the_newest_odometry_is_dropped(world, generator):
+    harness = Harness(world, FilterLoopConfig(max_image_age=1.0))
+    harness.add_worker("w1")
+    pose = world.sample_camera_pose(generator)
+    harness.collect(harness.loop.handle_odometry(_odometry(10.0, torch.eye(4, dtype=torch.float64))))
+    harness.loop.handle_image(_image(world, 12.5, pose))
+    harness.tick()
+    assert harness.loop.counters()["bad_image_ahead"] == 1 and harness.requests == []
+    harness.loop.handle_image(_image(world, 10.5, pose))
+    harness.tick()
+    assert len(harness.requests) == 1
+
+
 def test_odometry_history_interpolates_and_carries(generator):
     history = OdometryHistory(horizon=5.0)
     a = torch.eye(4, dtype=torch.float64)

@@ -124,3 +124,52 @@ def test_zenoh_bus_on_loopback_carries_attachments_and_answers_queries():
     finally:
         for bus in (a, hub):
             bus.close()
+
+
+@pytest.fixture(scope="module")
+def certificates(tmp_path_factory):
+    from locnerf.cli.certs import make_certificates
+
+    folder = tmp_path_factory.mktemp("certs")
+    make_certificates(folder, roles=("filter",))
+    return folder
+
+
+def test_tls_settings_come_from_the_environment_and_map_onto_zenoh_keys(certificates):
+    import json
+
+    from services.transport.zenoh_bus import zenoh_config
+
+    environ = {
+        "LOCNERF_ZENOH_MODE": "client",
+        "LOCNERF_ZENOH_TLS_ROOT_CA": str(certificates / "ca.pem"),
+        "LOCNERF_ZENOH_TLS_CERTIFICATE": str(certificates / "filter.pem"),
+        "LOCNERF_ZENOH_TLS_KEY": str(certificates / "filter-key.pem"),
+        "LOCNERF_ZENOH_TLS_MUTUAL": "true",
+    }
+    config = TransportConfig().with_environment(environ)
+    assert config.tls is not None and config.tls.mutual and config.tls.key.endswith("filter-key.pem")
+    conf = zenoh_config(config)
+    assert json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True
+    assert json.loads(conf.get_json("transport/link/tls/connect_certificate")) == str(certificates / "filter.pem")
+    assert json.loads(conf.get_json("transport/link/tls/listen_certificate")) is None  # a client does not listen
+    with pytest.raises(ValueError, match="LOCNERF_ZENOH_TLS_MUTUAL='maybe': expected true or false"):
+        TransportConfig().with_environment(environ | {"LOCNERF_ZENOH_TLS_MUTUAL": "maybe"})
+
+
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        ({"root_ca": "/nonexistent/ca.pem"}, "TLS root_ca '/nonexistent/ca.pem': file not found"),
+        ({"key": "ca.pem"}, "expected a PEM private key"),
+        ({"certificate": "filter-key.pem"}, "expected a PEM certificate"),
+        ({"certificate": "", "key": ""}, "mutual = true: expected a certificate and key"),
+    ],
+)
+def test_bad_tls_files_are_named_in_the_error(certificates, fields, message):
+    from services.transport.config import TlsConfig
+
+    good = {"root_ca": "ca.pem", "certificate": "filter.pem", "key": "filter-key.pem"}
+    paths = {name: (str(certificates / value) if value and not value.startswith("/") else value) for name, value in (good | fields).items()}
+    with pytest.raises(ValueError, match=message):
+        TlsConfig(**paths)
