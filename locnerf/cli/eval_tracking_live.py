@@ -101,6 +101,7 @@ def _observe(observed: LiveObservations, kind: str, payload: bytes, arrival: flo
     elif kind == "pose":
         pose = decode(payload, PoseEstimate)
         observed.poses.append((pose.stamp, arrival, torch.tensor(pose.T_world_cam, dtype=torch.float64)))
+        observed.particle_counts.append(pose.particle_count)
     else:
         observed.updates[decode(payload, UpdateResult).request_id] = arrival
 

@@ -13,7 +13,8 @@ and measures the rates:
 - ``pose_realtime_factor``: the same for the filter's poses (below 1 when the filter falls behind);
 - ``pose_hz``, ``update_hz``: published poses and completed updates per wall second, over the
   span of the poses;
-- ``pose_latency_*_ms``: arrival of a pose minus arrival of the odometry of the same stamp.
+- ``pose_latency_*_ms``: arrival of a pose minus arrival of the odometry of the same stamp;
+- ``particles_median`` / ``_min`` / ``_max``: the filter's particle count over its poses.
 """
 
 from __future__ import annotations
@@ -39,12 +40,14 @@ class LiveObservations:
         truth: true ``T_world_cam`` (4, 4) float64, metric, by stamp.
         poses: (stamp, arrival, ``T_world_cam`` (4, 4) float64 metric) of every published pose.
         updates: arrival of the last shard of every update result, by request id.
+        particle_counts: the filter's particle count with every published pose.
     """
 
     odometry: list[tuple[float, float]] = field(default_factory=list)
     truth: dict[float, torch.Tensor] = field(default_factory=dict)
     poses: list[tuple[float, float, torch.Tensor]] = field(default_factory=list)
     updates: dict[str, float] = field(default_factory=dict)
+    particle_counts: list[int] = field(default_factory=list)
 
 
 def _span_rate(stamps: list[float], arrivals: list[float]) -> float | None:
@@ -100,6 +103,9 @@ def live_rates(observed: LiveObservations) -> dict[str, Any]:
         "updates": len(observed.updates),
         "odometry_messages": len(odometry),
     }
+    if observed.particle_counts:
+        counts = torch.tensor(observed.particle_counts, dtype=torch.float64)
+        rates |= {"particles_median": float(counts.median()), "particles_min": int(counts.min()), "particles_max": int(counts.max())}
     if latencies.numel():
         rates |= {f"pose_latency_{name}_ms": float(torch.quantile(latencies, q)) for name, q in (("p50", 0.5), ("p95", 0.95), ("max", 1.0))}
     return rates
