@@ -9,6 +9,7 @@ from pathlib import Path
 
 import torch
 
+from locnerf.cli.eval_tracking_live import run_live
 from locnerf.cli.map_source import WORLD, open_map, recovery_keyframes
 from locnerf.config import load_config, preset
 from locnerf.data import read_nerf_synthetic
@@ -41,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--speed", type=float, default=0.66, help="sequence folder: nominal camera speed, data-set units per second")
     parser.add_argument("--duration", type=float, default=None, help="length of the run, seconds (default: one loop)")
     parser.add_argument("--odom-rate", type=float, default=15.0, help="odometry messages per second")
-    parser.add_argument("--image-rate", type=float, default=3.0, help="images per second")
+    parser.add_argument("--image-rate", type=float, default=None, help="images per second (default: 3 offline, 5 with --live)")
     parser.add_argument("--drift", type=float, default=0.01, help="odometry scale drift (0.01: 1 %% of the distance travelled)")
     parser.add_argument("--yaw-drift", type=float, default=0.2, help="odometry yaw drift, degrees per second")
     parser.add_argument("--noise", type=float, default=2e-3, help="odometry white translation noise per message, metres per axis")
@@ -57,6 +58,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
+    parser.add_argument("--live", action="store_true", help="run ingest, filter and workers as processes over loopback Zenoh at real speed (the filter starts globally)")
+    parser.add_argument("--workers", type=int, default=1, help="--live: NeRF worker processes")
+    parser.add_argument("--logs", type=Path, default=Path("out/eval_tracking_live"), help="--live: folder for the services' configs and logs")
     parser.add_argument("--plots", type=Path, default=None, help="folder for the PNG figure")
     parser.add_argument("--json", action="store_true", help="print the report and the error series as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -94,23 +98,36 @@ def convergence_criterion(args: argparse.Namespace) -> ConvergenceConfig:
     return ConvergenceConfig(translation=args.converged_translation, rotation_deg=args.converged_rotation, hold=args.converged_hold)
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.odom_rate <= 0 or args.image_rate <= 0:
-        raise ValueError(f"--odom-rate {args.odom_rate}, --image-rate {args.image_rate}: expected positive rates")
-    criterion = convergence_criterion(args)
-    device = resolve_device(args.device)
-    radiance_map = open_map(args.map, device)
-    path = camera_path(args, radiance_map)
-    vio = VioConfig(
+def vio_config(args: argparse.Namespace) -> VioConfig:
+    """The odometry model of --odom-rate, --drift, --yaw-drift, --noise, --rotation-noise."""
+    return VioConfig(
         rate=args.odom_rate,
         translation_drift=args.drift,
         yaw_drift_rate=math.radians(args.yaw_drift),
         translation_noise=args.noise,
         rotation_noise=math.radians(args.rotation_noise),
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    image_rate = args.image_rate if args.image_rate is not None else (5.0 if args.live else 3.0)
+    if args.odom_rate <= 0 or image_rate <= 0:
+        raise ValueError(f"--odom-rate {args.odom_rate}, --image-rate {image_rate}: expected positive rates")
+    criterion = convergence_criterion(args)
+    if args.live:
+        if args.background != "white" or args.updates_per_image != 1 or args.init != "global" or args.no_recovery or args.plots:
+            raise ValueError("--live: --background white, --updates-per-image 1, --init global, no --no-recovery and no --plots (the services do not do the others)")
+        path = camera_path(args, open_map(args.map, torch.device("cpu")))
+        sensor_seconds = args.duration if args.duration is not None else path.duration
+        report = run_live(args, criterion, image_rate, vio_config(args).model_dump(), sensor_seconds)
+        print(json.dumps(report) if args.json else json.dumps(report, indent=2))
+        return 0
+    device = resolve_device(args.device)
+    radiance_map = open_map(args.map, device)
+    path = camera_path(args, radiance_map)
     scenario = build_scenario(
         path,
-        ScenarioConfig(duration=args.duration, image_rate=args.image_rate, vio=vio, kidnap_at=args.kidnap_at, seed=args.seed),
+        ScenarioConfig(duration=args.duration, image_rate=image_rate, vio=vio_config(args), kidnap_at=args.kidnap_at, seed=args.seed),
         radiance_map.normalization,
     )
     config = localizer_config(args)

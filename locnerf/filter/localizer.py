@@ -21,6 +21,7 @@ from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
 from locnerf.filter.estimate import PoseEstimate, estimate_from_particles
 from locnerf.filter.keyframes import KeyframeIndex
+from locnerf.filter.kld import KldConfig, kld_resample
 from locnerf.filter.lineage import NO_ANCESTOR, Lineage, lookup
 from locnerf.filter.measurement import (
     MeasurementConfig,
@@ -60,6 +61,11 @@ class LocalizerConfig(BaseModel):
     measurement: MeasurementConfig = Field(default_factory=MeasurementConfig, description="Photometric likelihood (eq. 5).")
     annealing: AnnealingConfig = Field(default_factory=AnnealingConfig, description="Algorithm 1 coarse-to-fine schedule.")
     resampler: ResamplerName = Field("multinomial", description="Resampling scheme: multinomial (the paper) or systematic.")
+    kld: KldConfig = Field(
+        default_factory=KldConfig,
+        description="KLD-sampling (Fox 2003): when enabled the particle count after each resampling follows the posterior's spread, "
+        "between kld.min_particles and `particles`, replacing the annealing's reduced_particles (the annealing still scales the noise).",
+    )
     convergence_protection: ConvergenceProtectionConfig = Field(
         default_factory=ConvergenceProtectionConfig, description="Re-drawing of a few particles before each update."
     )
@@ -315,8 +321,13 @@ class Localizer:
         # A filter that injects believes it is lost: back to the COARSE stage (full noise and count).
         spread = math.inf if plan.fraction > 0 else weighted_position_spread(particles.positions.double(), weights)
         self.stage = stage_for_spread(spread, self.config.annealing)
-        target = particle_count(self.stage, self.config.particles, self.config.annealing)
-        indices = RESAMPLERS[self.config.resampler](weights, target, self.generator).to(self.device)
+        resampler = RESAMPLERS[self.config.resampler]
+        if self.config.kld.enabled and plan.fraction == 0:
+            indices = kld_resample(weights, particles.poses, self.config.kld, self.config.particles, resampler, self.generator).to(self.device)
+            target = int(indices.shape[0])
+        else:  # a filter that injects is lost: KLD-sampling then keeps the full count
+            target = self.config.particles if self.config.kld.enabled else particle_count(self.stage, self.config.particles, self.config.annealing)
+            indices = resampler(weights, target, self.generator).to(self.device)
         poses = particles.poses[indices]
         parents = particles.ids[indices]
         injected = int(round(plan.fraction * target))

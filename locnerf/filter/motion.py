@@ -128,4 +128,18 @@ def propagate_poses(
     delta = sample_tangent_noise(poses.shape[0], sigma, generator)
     if pivot is not None:
         delta = delta + pivot.sample(poses.shape[0], generator)
-    return moved @ se3_exp(delta).to(poses.dtype).to(poses.device)
+    return reorthonormalize(moved @ se3_exp(delta).to(poses.dtype).to(poses.device))
+
+
+def reorthonormalize(poses: torch.Tensor) -> torch.Tensor:
+    """Poses (N, 4, 4) with their rotations pulled back onto SO(3) by one Newton step of the
+    polar decomposition, ``R ← R (3I − RᵀR) / 2`` (quadratic convergence for nearly orthonormal R).
+
+    Thousands of float32 compositions (15 Hz prediction) otherwise let ``|RᵀR − I|`` grow past
+    the 1e-3 the workers accept: measured on the live lego run, requests were refused after ~8 s.
+    """
+    rotation = poses[..., :3, :3]
+    eye = torch.eye(3, dtype=poses.dtype, device=poses.device)
+    out = poses.clone()
+    out[..., :3, :3] = rotation @ (3 * eye - rotation.transpose(-1, -2) @ rotation) / 2
+    return out

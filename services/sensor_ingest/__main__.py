@@ -37,6 +37,7 @@ from services.sensor_ingest.events import SensorEvent
 from services.sensor_ingest.prefetch import PrefetchedEvents
 from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
 from services.sensor_ingest.ros2_source import Ros2Ingest
+from services.sensor_ingest.scenario_source import ScenarioSourceConfig, build_source_scenario, scenario_events
 from services.sensor_ingest.service import Pacer, event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from services.transport import Bus, Inbox, TransportConfig, open_bus
@@ -51,15 +52,19 @@ class IngestConfig(BaseModel):
 
     robot_id: str = Field("robot", description="Robot whose sensor keys are published.")
     ingest_id: str = Field("", description="Name of this ingest in its status key (empty: <hostname>-<pid>).")
-    source: Literal["world", "replay", "euroc", "camera", "ros2"] = Field(
+    source: Literal["world", "replay", "scenario", "euroc", "camera", "ros2"] = Field(
         "world",
         description="Stream source: the procedural world along a trajectory, the replay of a posed image sequence, "
+        "the offline tracking experiment's scenario (same odometry model, images and kidnapping as `locnerf eval tracking`), "
         "a EuRoC MAV folder (its stamps kept, odometry synthesised from its ground truth), "
         "a live camera / video file (images only; odometry comes from the robot on sensors/odom), "
         "or a ROS 2 robot's odometry and camera topics over rmw_zenoh (docs/ROS2.md).",
     )
     world: WorldSourceConfig = Field(default_factory=WorldSourceConfig, description="Rates, duration and noise of the world stream.")
     replay: ReplaySourceConfig = Field(default_factory=ReplaySourceConfig, description="Sequence, rates and noise of the replay.")
+    scenario: ScenarioSourceConfig = Field(
+        default_factory=ScenarioSourceConfig, description="Path, rates, odometry errors and kidnapping of the tracking scenario."
+    )
     euroc: EurocSourceConfig = Field(default_factory=EurocSourceConfig, description="EuRoC folder, camera, rates and noise.")
     camera: CameraSourceConfig = Field(default_factory=CameraSourceConfig, description="Capture device or video file and its calibration.")
     ros2: Ros2Config = Field(
@@ -122,6 +127,9 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
         return world_events(ProceduralWorld.default(), config.world, generator)
     if config.source == "camera":
         return camera_events(config.camera)
+    if config.source == "scenario":
+        # Images draw from seed + 1, as the offline run's image generator does.
+        return scenario_events(build_source_scenario(config.scenario, config.seed), torch.Generator().manual_seed(config.seed + 1))
     if config.source == "euroc":
         if not config.euroc.path:
             raise ValueError("source = 'euroc' needs euroc.path: the folder holding mav0/")
