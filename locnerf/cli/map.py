@@ -29,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("map", help="build, evaluate, render and describe map files")
     commands = parser.add_subparsers(dest="map_command", required=True)
 
-    build = commands.add_parser("build", help="build a map file from a data set (LLFF, NeRF-synthetic, nerfstudio)")
+    build = commands.add_parser("build", help="build a map file from a data set (LLFF, NeRF-synthetic, nerfstudio, 7-Scenes)")
     build.add_argument("data", help="data-set folder")
     build.add_argument("--out", required=True, help="map file to write")
     build.add_argument("--backend", choices=("grid", "nerf_pytorch"), default="grid", help="grid: train a grid map; nerf_pytorch: import --checkpoint")
@@ -37,16 +37,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument("--minutes", type=float, default=10.0, help="training wall-time budget")
     build.add_argument("--steps", type=int, default=BuildConfig().steps, help="most training steps")
     build.add_argument("--voxels", type=int, default=GridFieldConfig().voxels, help="grid vertices in all")
-    build.add_argument("--downscale", type=int, help="image size divisor (default 8 for LLFF, 1 otherwise)")
+    build.add_argument("--downscale", type=int, help="image size divisor (default 8 for LLFF, 4 for 7-Scenes, 1 otherwise)")
+    build.add_argument("--split", default="train", help="split to build from (the held-out figures use the test split)")
+    build.add_argument("--stride", type=int, default=1, help="keep every N-th frame of the split")
+    build.add_argument("--no-depth", action="store_true", help="build from colour only even when the data set has depth images")
+    build.add_argument("--depth-weight", type=float, default=BuildConfig().depth_weight, help="weight of the expected-depth loss (RGB-D data)")
     build.add_argument("--device", default="auto", help="auto | cpu | cuda[:N]")
     build.add_argument("--seed", type=int, default=0)
     build.set_defaults(func=run_build)
 
     evaluate = commands.add_parser("eval", help="PSNR/SSIM of a map against a data set's views")
     evaluate.add_argument("map", help="map file")
-    evaluate.add_argument("data", help="data-set folder")
+    evaluate.add_argument("data", nargs="?", help="data-set folder (or --data)")
+    evaluate.add_argument("--data", dest="data_option", help="data-set folder (instead of the positional argument)")
     evaluate.add_argument("--split", default="test")
     evaluate.add_argument("--downscale", type=int)
+    evaluate.add_argument("--stride", type=int, default=1, help="evaluate every N-th view of the split")
     evaluate.add_argument("--device", default="auto")
     evaluate.add_argument("--json", action="store_true", help="print JSON")
     evaluate.set_defaults(func=run_eval)
@@ -71,20 +77,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     info.set_defaults(func=run_info)
 
 
-def _held_out(data: str, downscale: int | None, split: str = "test"):
-    return read_dataset(data, split=split, downscale=downscale, skip_missing=True)
+def _held_out(data: str, downscale: int | None, split: str = "test", stride: int = 1):
+    return read_dataset(data, split=split, downscale=downscale, skip_missing=True, stride=stride)
 
 
 def run_build(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
-    train = read_dataset(args.data, split="train", downscale=args.downscale)
+    train = read_dataset(args.data, split=args.split, downscale=args.downscale, stride=args.stride)
     if args.backend == "nerf_pytorch":
         if not args.checkpoint:
             raise ValueError("--backend nerf_pytorch needs --checkpoint FILE.tar")
         info = MapInfo(train.normalization, train.intrinsics, train.T_world_cam.double(), {"source": train.source, "checkpoint": args.checkpoint})
         radiance_map = load_nerf_pytorch_checkpoint(args.checkpoint, info, train.white_background, device)
     else:
-        config = BuildConfig(steps=args.steps, minutes=args.minutes, seed=args.seed, field=GridFieldConfig(voxels=args.voxels))
+        config = BuildConfig(
+            steps=args.steps, minutes=args.minutes, seed=args.seed, field=GridFieldConfig(voxels=args.voxels),
+            use_depth=not args.no_depth, depth_weight=args.depth_weight,
+        )
         radiance_map = build_map(train, config, device=device, progress=True)
         radiance_map.metadata["config"] = config.model_dump(mode="json")
     held_out = _held_out(args.data, args.downscale)
@@ -97,8 +106,10 @@ def run_build(args: argparse.Namespace) -> int:
 
 def run_eval(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
+    if (args.data is None) == (args.data_option is None):
+        raise ValueError("map eval: name the data set once, as DATA or --data DATA")
     radiance_map = load_map(args.map, device)
-    scores = evaluate_map(radiance_map.render_rays, _held_out(args.data, args.downscale, args.split), device)
+    scores = evaluate_map(radiance_map.render_rays, _held_out(args.data or args.data_option, args.downscale, args.split, args.stride), device)
     if args.json:
         print(json.dumps(scores))
     else:

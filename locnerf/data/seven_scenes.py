@@ -167,9 +167,11 @@ def _up_axis(folder: Path) -> tuple[float, float, float]:
 def depth_points(depths: torch.Tensor, T_world_cam: torch.Tensor, camera: PinholeIntrinsics) -> torch.Tensor:
     """(P, 3) world points of the valid pixels of depth images (K, H, W) seen from poses (K, 4, 4) (OpenGL axes).
 
-    Directions have camera z = -1, so a pixel's point is its direction times its depth.
+    Directions have camera z = -1, so a pixel's point is its direction times its depth. The pixel
+    grid is the images' own (H, W); ``camera`` gives the focal lengths and principal point.
     """
-    v, u = torch.meshgrid(torch.arange(camera.height, dtype=torch.float64), torch.arange(camera.width, dtype=torch.float64), indexing="ij")
+    height, width = depths.shape[1:]
+    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64), indexing="ij")
     directions = camera_directions_from_pixels(torch.stack((u, v), dim=-1), camera)  # (H, W, 3)
     points = []
     for depth, pose in zip(depths.double(), T_world_cam.double()):
