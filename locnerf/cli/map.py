@@ -13,13 +13,14 @@ import torch
 
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
+from locnerf.eval.plots import plot_images_beside_renders
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import load_map, read_map_archive, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
 from locnerf.render.image import render_image
-from locnerf.train import BuildConfig, build_map, evaluate_map
+from locnerf.train import BuildConfig, build_map, evaluate_map, psnr
 
 logger = logging.getLogger(__name__)
 
@@ -65,6 +66,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--out", required=True, help="PNG to write")
     render.add_argument("--device", default="auto")
     render.set_defaults(func=run_render)
+
+    compare = commands.add_parser("compare", help="PNG of a split's camera images beside the map's renders at their true poses")
+    compare.add_argument("map", help="map file")
+    compare.add_argument("--data", required=True, help="data-set folder")
+    compare.add_argument("--split", default="test")
+    compare.add_argument("--downscale", type=int)
+    compare.add_argument("--views", type=int, default=4, help="views, evenly spaced over the split")
+    compare.add_argument("--out", required=True, help="PNG to write")
+    compare.add_argument("--device", default="auto")
+    compare.set_defaults(func=run_compare)
 
     prune = commands.add_parser("prune", help="re-threshold a grid map's occupancy (faster renders, slightly lower PSNR)")
     prune.add_argument("map", help="grid map file (rewritten in place unless --out)")
@@ -142,6 +153,21 @@ def run_render(args: argparse.Namespace) -> int:
     if not cv2.imwrite(str(args.out), pixels):
         raise ValueError(f"--out {args.out}: cannot write a PNG there")
     print(args.out)
+    return 0
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    if args.views < 1:
+        raise ValueError(f"--views {args.views}: expected >= 1")
+    device = resolve_device(args.device)
+    radiance_map = load_map(args.map, device)
+    views = _held_out(args.data, args.downscale, args.split)
+    panels = []
+    for position in np.linspace(0, len(views) - 1, args.views).round().astype(int).tolist():
+        rendering = render_image(radiance_map.render_rays, views.T_world_cam[position].to(device, torch.float32), views.intrinsics).cpu()
+        panels.append((f"{views.names[position]} ({psnr(rendering, views.images[position]):.1f} dB)", views.images[position], rendering))
+    title = f"{Path(args.map).name} on the {args.split} split: camera image | map rendered at the true pose"
+    print(plot_images_beside_renders(panels, Path(args.out), title, render_heading="map at the true pose"))
     return 0
 
 
