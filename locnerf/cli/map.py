@@ -13,13 +13,14 @@ import torch
 
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
+from locnerf.eval.plots import plot_images_beside_renders
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import load_map, read_map_archive, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
 from locnerf.render.image import render_image
-from locnerf.train import BuildConfig, build_map, evaluate_map
+from locnerf.train import BuildConfig, build_map, evaluate_map, psnr
 
 logger = logging.getLogger(__name__)
 
@@ -29,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("map", help="build, evaluate, render and describe map files")
     commands = parser.add_subparsers(dest="map_command", required=True)
 
-    build = commands.add_parser("build", help="build a map file from a data set (LLFF, NeRF-synthetic, nerfstudio)")
+    build = commands.add_parser("build", help="build a map file from a data set (LLFF, NeRF-synthetic, nerfstudio, 7-Scenes)")
     build.add_argument("data", help="data-set folder")
     build.add_argument("--out", required=True, help="map file to write")
     build.add_argument("--backend", choices=("grid", "nerf_pytorch"), default="grid", help="grid: train a grid map; nerf_pytorch: import --checkpoint")
@@ -37,16 +38,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument("--minutes", type=float, default=10.0, help="training wall-time budget")
     build.add_argument("--steps", type=int, default=BuildConfig().steps, help="most training steps")
     build.add_argument("--voxels", type=int, default=GridFieldConfig().voxels, help="grid vertices in all")
-    build.add_argument("--downscale", type=int, help="image size divisor (default 8 for LLFF, 1 otherwise)")
+    build.add_argument("--downscale", type=int, help="image size divisor (default 8 for LLFF, 4 for 7-Scenes, 1 otherwise)")
+    build.add_argument("--split", default="train", help="split to build from (the held-out figures use the test split)")
+    build.add_argument("--stride", type=int, default=1, help="keep every N-th frame of the split")
+    build.add_argument("--no-depth", action="store_true", help="build from colour only even when the data set has depth images")
+    build.add_argument("--depth-weight", type=float, default=BuildConfig().depth_weight, help="weight of the expected-depth loss (RGB-D data)")
     build.add_argument("--device", default="auto", help="auto | cpu | cuda[:N]")
     build.add_argument("--seed", type=int, default=0)
     build.set_defaults(func=run_build)
 
     evaluate = commands.add_parser("eval", help="PSNR/SSIM of a map against a data set's views")
     evaluate.add_argument("map", help="map file")
-    evaluate.add_argument("data", help="data-set folder")
+    evaluate.add_argument("data", nargs="?", help="data-set folder (or --data)")
+    evaluate.add_argument("--data", dest="data_option", help="data-set folder (instead of the positional argument)")
     evaluate.add_argument("--split", default="test")
     evaluate.add_argument("--downscale", type=int)
+    evaluate.add_argument("--stride", type=int, default=1, help="evaluate every N-th view of the split")
     evaluate.add_argument("--device", default="auto")
     evaluate.add_argument("--json", action="store_true", help="print JSON")
     evaluate.set_defaults(func=run_eval)
@@ -60,6 +67,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--device", default="auto")
     render.set_defaults(func=run_render)
 
+    compare = commands.add_parser("compare", help="PNG of a split's camera images beside the map's renders at their true poses")
+    compare.add_argument("map", help="map file")
+    compare.add_argument("--data", required=True, help="data-set folder")
+    compare.add_argument("--split", default="test")
+    compare.add_argument("--downscale", type=int)
+    compare.add_argument("--views", type=int, default=4, help="views, evenly spaced over the split")
+    compare.add_argument("--out", required=True, help="PNG to write")
+    compare.add_argument("--device", default="auto")
+    compare.set_defaults(func=run_compare)
+
     prune = commands.add_parser("prune", help="re-threshold a grid map's occupancy (faster renders, slightly lower PSNR)")
     prune.add_argument("map", help="grid map file (rewritten in place unless --out)")
     prune.add_argument("--occupancy-alpha", type=float, required=True, help="one-step opacity below which voxels are skipped")
@@ -71,20 +88,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     info.set_defaults(func=run_info)
 
 
-def _held_out(data: str, downscale: int | None, split: str = "test"):
-    return read_dataset(data, split=split, downscale=downscale, skip_missing=True)
+def _held_out(data: str, downscale: int | None, split: str = "test", stride: int = 1):
+    return read_dataset(data, split=split, downscale=downscale, skip_missing=True, stride=stride)
 
 
 def run_build(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
-    train = read_dataset(args.data, split="train", downscale=args.downscale)
+    train = read_dataset(args.data, split=args.split, downscale=args.downscale, stride=args.stride)
     if args.backend == "nerf_pytorch":
         if not args.checkpoint:
             raise ValueError("--backend nerf_pytorch needs --checkpoint FILE.tar")
         info = MapInfo(train.normalization, train.intrinsics, train.T_world_cam.double(), {"source": train.source, "checkpoint": args.checkpoint})
         radiance_map = load_nerf_pytorch_checkpoint(args.checkpoint, info, train.white_background, device)
     else:
-        config = BuildConfig(steps=args.steps, minutes=args.minutes, seed=args.seed, field=GridFieldConfig(voxels=args.voxels))
+        config = BuildConfig(
+            steps=args.steps, minutes=args.minutes, seed=args.seed, field=GridFieldConfig(voxels=args.voxels),
+            use_depth=not args.no_depth, depth_weight=args.depth_weight,
+        )
         radiance_map = build_map(train, config, device=device, progress=True)
         radiance_map.metadata["config"] = config.model_dump(mode="json")
     held_out = _held_out(args.data, args.downscale)
@@ -97,8 +117,10 @@ def run_build(args: argparse.Namespace) -> int:
 
 def run_eval(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
+    if (args.data is None) == (args.data_option is None):
+        raise ValueError("map eval: name the data set once, as DATA or --data DATA")
     radiance_map = load_map(args.map, device)
-    scores = evaluate_map(radiance_map.render_rays, _held_out(args.data, args.downscale, args.split), device)
+    scores = evaluate_map(radiance_map.render_rays, _held_out(args.data or args.data_option, args.downscale, args.split, args.stride), device)
     if args.json:
         print(json.dumps(scores))
     else:
@@ -131,6 +153,21 @@ def run_render(args: argparse.Namespace) -> int:
     if not cv2.imwrite(str(args.out), pixels):
         raise ValueError(f"--out {args.out}: cannot write a PNG there")
     print(args.out)
+    return 0
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    if args.views < 1:
+        raise ValueError(f"--views {args.views}: expected >= 1")
+    device = resolve_device(args.device)
+    radiance_map = load_map(args.map, device)
+    views = _held_out(args.data, args.downscale, args.split)
+    panels = []
+    for position in np.linspace(0, len(views) - 1, args.views).round().astype(int).tolist():
+        rendering = render_image(radiance_map.render_rays, views.T_world_cam[position].to(device, torch.float32), views.intrinsics).cpu()
+        panels.append((f"{views.names[position]} ({psnr(rendering, views.images[position]):.1f} dB)", views.images[position], rendering))
+    title = f"{Path(args.map).name} on the {args.split} split: camera image | map rendered at the true pose"
+    print(plot_images_beside_renders(panels, Path(args.out), title, render_heading="map at the true pose"))
     return 0
 
 

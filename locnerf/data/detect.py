@@ -6,11 +6,13 @@ from pathlib import Path
 
 from locnerf.data.llff import read_llff
 from locnerf.data.posed_images import PosedImages
+from locnerf.data.seven_scenes import DEFAULT_DOWNSCALE as SEVEN_SCENES_DOWNSCALE
+from locnerf.data.seven_scenes import read_seven_scenes
 from locnerf.data.transforms_json import read_nerf_synthetic, read_nerfstudio
 
 
 def dataset_format(path: str | Path) -> str:
-    """``llff`` | ``nerf_synthetic`` | ``nerfstudio`` for a data-set folder (or a transforms.json).
+    """``llff`` | ``nerf_synthetic`` | ``nerfstudio`` | ``seven_scenes`` for a data-set folder (or a transforms.json).
 
     Raises:
         FileNotFoundError / ValueError: naming the path when nothing recognisable is there.
@@ -26,22 +28,34 @@ def dataset_format(path: str | Path) -> str:
         return "nerf_synthetic"
     if (path / "transforms.json").is_file():
         return "nerfstudio"
-    raise ValueError(f"data set {path}: expected poses_bounds.npy (LLFF), transforms_<split>.json (NeRF-synthetic) or transforms.json (nerfstudio)")
+    if (path / "TrainSplit.txt").is_file() or (path / "TestSplit.txt").is_file():
+        return "seven_scenes"
+    raise ValueError(f"data set {path}: expected poses_bounds.npy (LLFF), transforms_<split>.json (NeRF-synthetic), "
+                     "transforms.json (nerfstudio) or TrainSplit.txt/TestSplit.txt (7-Scenes)")
 
 
-def read_dataset(path: str | Path, split: str = "train", downscale: int | None = None, skip_missing: bool = False) -> PosedImages:
+def read_dataset(
+    path: str | Path, split: str = "train", downscale: int | None = None, skip_missing: bool = False, stride: int = 1
+) -> PosedImages:
     """Read one split of a data set of any supported format.
 
     Args:
         path: data-set folder (or a nerfstudio ``transforms.json``).
-        split: ``train`` | ``test`` | ``val`` (NeRF-synthetic) | ``all`` (LLFF, nerfstudio); LLFF and
-            nerfstudio hold out every 8th image as ``test``.
-        downscale: image size divisor; default 8 for LLFF (``images_8``), 1 otherwise.
+        split: ``train`` | ``test`` | ``val`` (NeRF-synthetic) | ``all`` (LLFF, nerfstudio, 7-Scenes);
+            LLFF and nerfstudio hold out every 8th image as ``test``; 7-Scenes uses its split files.
+        downscale: image size divisor; default 8 for LLFF (``images_8``), 4 for 7-Scenes, 1 otherwise.
         skip_missing: NeRF-synthetic only: leave out frames whose image is absent.
+        stride: keep every ``stride``-th frame of the split.
     """
+    if stride < 1:
+        raise ValueError(f"stride={stride}: expected an integer >= 1")
     kind = dataset_format(path)
+    if kind == "seven_scenes":
+        return read_seven_scenes(path, split=split, downscale=downscale or SEVEN_SCENES_DOWNSCALE, stride=stride)
     if kind == "llff":
-        return read_llff(path, downscale=downscale or 8, split=split)
-    if kind == "nerf_synthetic":
-        return read_nerf_synthetic(path, split=split, downscale=downscale or 1, skip_missing=skip_missing)
-    return read_nerfstudio(path, downscale=downscale or 1, split=split)
+        images = read_llff(path, downscale=downscale or 8, split=split)
+    elif kind == "nerf_synthetic":
+        images = read_nerf_synthetic(path, split=split, downscale=downscale or 1, skip_missing=skip_missing)
+    else:
+        images = read_nerfstudio(path, downscale=downscale or 1, split=split)
+    return images if stride == 1 else images.subset(list(range(0, len(images), stride)))

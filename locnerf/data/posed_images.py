@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 
@@ -26,6 +26,12 @@ class PosedImages:
             the field lives (map frame, or NDC space when ``normalization.ndc``).
         white_background: the images were composited on white (RGBA data sets).
         source: the path the images were read from, for map metadata.
+        indices: K frame numbers, unique within the data set (positions in its full frame list).
+        depths: (K, Hd, Wd) float32 depth along each depth camera's optical axis in map units,
+            0 where the sensor gave none; None for colour-only data sets.
+        depth_intrinsics: the camera of ``depths``. The depth camera sits at ``T_world_cam``
+            (RGB-D data sets pose the depth camera and use the pose for colour too), so the depth
+            images are not registered to the colour images: each is used with its own camera.
     """
 
     images: torch.Tensor
@@ -39,6 +45,8 @@ class PosedImages:
     white_background: bool = False
     source: str = ""
     indices: list[int] = field(default_factory=list)
+    depths: torch.Tensor | None = None
+    depth_intrinsics: PinholeIntrinsics | None = None
 
     def __post_init__(self) -> None:
         count = self.images.shape[0]
@@ -49,6 +57,12 @@ class PosedImages:
             raise ValueError(f"T_world_cam of shape {tuple(self.T_world_cam.shape)}: expected ({count}, 4, 4) for {self.source}")
         if len(self.names) != count:
             raise ValueError(f"{len(self.names)} names for {count} images in {self.source}")
+        if (self.depths is None) != (self.depth_intrinsics is None):
+            raise ValueError(f"depths and depth_intrinsics must be given together for {self.source}")
+        if self.depths is not None and self.depth_intrinsics is not None:
+            expected_depth = (count, self.depth_intrinsics.height, self.depth_intrinsics.width)
+            if tuple(self.depths.shape) != expected_depth:
+                raise ValueError(f"depths of shape {tuple(self.depths.shape)}: expected {expected_depth} for {self.source}")
         if not self.indices:
             object.__setattr__(self, "indices", list(range(count)))
 
@@ -70,4 +84,10 @@ class PosedImages:
             white_background=self.white_background,
             source=self.source,
             indices=[self.indices[i] for i in positions],
+            depths=self.depths[index] if self.depths is not None else None,
+            depth_intrinsics=self.depth_intrinsics,
         )
+
+    def without_depth(self) -> "PosedImages":
+        """The same images without their depth images (RGB-only map building)."""
+        return replace(self, depths=None, depth_intrinsics=None)

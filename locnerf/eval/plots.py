@@ -87,18 +87,21 @@ def plot_success_against_rays(series: dict[str, tuple[list[int], list[float]]], 
     return save_figure(figure, path, title)
 
 
-def plot_images_beside_renders(panels: list[tuple[str, torch.Tensor, torch.Tensor]], path: Path, title: str) -> Path:
-    """Camera images beside the map rendered at the estimated pose, one row each (paper Fig. 6 style).
+def plot_images_beside_renders(
+    panels: list[tuple[str, torch.Tensor, torch.Tensor]], path: Path, title: str, render_heading: str = "map at the estimate"
+) -> Path:
+    """Camera images beside the map rendered at a pose (by default the estimate), one row each (paper Fig. 6 style).
 
     Args:
         panels: (label, camera image (H, W, 3), rendering (H, W, 3)), colours in [0, 1].
+        render_heading: title of the rendering column.
     """
     if not panels:
         raise ValueError("no panels to plot: expected at least one (label, image, rendering)")
     path.parent.mkdir(parents=True, exist_ok=True)
     figure, axes = plt.subplots(len(panels), 2, figsize=(7, 3.2 * len(panels)), squeeze=False)
     for row, (label, image, rendering) in zip(axes, panels):
-        for axis, picture, heading in ((row[0], image, f"camera: {label}"), (row[1], rendering, "map at the estimate")):
+        for axis, picture, heading in ((row[0], image, f"camera: {label}"), (row[1], rendering, render_heading)):
             axis.imshow(picture.clamp(0, 1).cpu().numpy())
             axis.set_title(heading, fontsize=9)
             axis.axis("off")

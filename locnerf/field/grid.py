@@ -233,13 +233,14 @@ class GridField(torch.nn.Module):
             colour = colour + (1.0 - opacity[:, None]) * self.background
         return colour
 
-    def render_training(
-        self, origins: torch.Tensor, directions: torch.Tensor, view_directions: torch.Tensor, generator: torch.Generator | None
-    ) -> torch.Tensor:
-        """Differentiable colours of rays: (R, 3) each in -> rgb (R, 3) (not clamped).
+    def _training_samples(
+        self, origins: torch.Tensor, directions: torch.Tensor, generator: torch.Generator | None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int]:
+        """Stratified samples of rays (R, 3) x2 in occupied voxels of the occupied box.
 
-        Every ray is sampled at once with a random (stratified) offset from ``generator``;
-        ``view_directions`` (R, 3) are the world-frame directions the decoder sees.
+        Returns:
+            ray index (S,), sample index (S,), points (S, 3), ray parameters (S,), samples per ray
+            of the dense lattice (the width of the compositing table).
         """
         t_entry, t_exit = ray_box_intersection(origins, directions, self.occupied_box)
         dt = self.config.step_ratio * self.ray_parameter_per_voxel(directions)
@@ -248,10 +249,58 @@ class GridField(torch.nn.Module):
         t = t_entry[:, None] + (torch.arange(count, device=origins.device)[None] + jitter) * dt[:, None]
         valid = t < t_exit[:, None]
         ray_index, sample_index = valid.nonzero(as_tuple=True)
-        points = origins[ray_index] + t[ray_index, sample_index, None] * directions[ray_index]
+        t = t[ray_index, sample_index]
+        points = origins[ray_index] + t[:, None] * directions[ray_index]
         keep = self.occupied(points)
-        ray_index, sample_index, points = ray_index[keep], sample_index[keep], points[keep]
+        return ray_index[keep], sample_index[keep], points[keep], t[keep], count
+
+    def render_training(
+        self, origins: torch.Tensor, directions: torch.Tensor, view_directions: torch.Tensor, generator: torch.Generator | None
+    ) -> torch.Tensor:
+        """Differentiable colours of rays: (R, 3) each in -> rgb (R, 3) (not clamped).
+
+        Every ray is sampled at once with a random (stratified) offset from ``generator``;
+        ``view_directions`` (R, 3) are the world-frame directions the decoder sees.
+        """
+        ray_index, sample_index, points, _, count = self._training_samples(origins, directions, generator)
         return self._composite(ray_index, sample_index, points, (origins.shape[0], count), view_directions)
+
+    def render_training_depth(self, origins: torch.Tensor, directions: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+        """Differentiable expected ray parameter of rays (R, 3) x2 -> (R,): ``Σ w_k t_k + (1 - Σ w_k) · t_box``.
+
+        The transmittance left after the last sample ends the ray where it leaves the grid's box
+        (``t_box``), so a transparent ray reads "far" rather than 0: a depth loss then pulls
+        density towards the observed surface instead of rewarding empty rays. With directions of
+        camera z = -1 (:mod:`locnerf.render.rays`) the parameter is the depth along the optical axis.
+        """
+        ray_index, sample_index, points, t, count = self._training_samples(origins, directions, generator)
+        optical = self.optical_depth(self.sample_grid(points)[:, 0])
+        table = torch.zeros((origins.shape[0], count), device=points.device, dtype=optical.dtype).index_put((ray_index, sample_index), optical)
+        weights, _ = weights_from_optical_depth(table)
+        sample_weights = weights[ray_index, sample_index]
+        expected = torch.zeros(origins.shape[0], device=points.device, dtype=optical.dtype).index_add(0, ray_index, sample_weights * t)
+        _, t_box = ray_box_intersection(origins, directions, self.box)
+        return expected + (1.0 - weights.sum(dim=-1)) * t_box
+
+    @torch.no_grad()
+    def seed_density(self, points: torch.Tensor, alpha: float) -> float:
+        """Start from known surface points (P, 3) (field space, e.g. back-projected depth): the vertex
+        nearest to each gets one-step opacity ``alpha`` (others keep theirs) and the occupancy is
+        recomputed from the densities, so training samples only near the seeds from the first step.
+
+        Returns:
+            the occupied fraction of the grid afterwards.
+        """
+        if not 0 < alpha < 1:
+            raise ValueError(f"alpha={alpha}: expected a one-step opacity in (0, 1)")
+        rx, ry, rz = self._resolution
+        cells = torch.tensor([rx - 1, ry - 1, rz - 1], device=points.device, dtype=points.dtype)
+        vertex = ((points - self.box[0]) * (cells / (self.box[1] - self.box[0]))).round()
+        inside = ((vertex >= 0) & (vertex <= cells)).all(dim=-1)
+        flat = (vertex[inside].long() * torch.tensor([1, rx, rx * ry], device=points.device)).sum(dim=-1)
+        raw = math.log(math.expm1(-math.log(1.0 - alpha) / self.config.step_ratio)) - self.density_shift
+        self.grid.data[flat.unique(), 0] = raw
+        return self.update_occupancy()
 
     def _composite(
         self, ray_index: torch.Tensor, sample_index: torch.Tensor, points: torch.Tensor, shape: tuple[int, int],

@@ -4,6 +4,11 @@ Coarse to fine: the grid starts with 1/8 of its vertices and is trilinearly upsa
 occupancy grid is refreshed periodically so that empty space stops costing samples. Training stops
 after ``steps`` steps or ``minutes`` of wall time, whichever comes first; the learning rates decay
 exponentially with the progress fraction.
+
+RGB-D data (images with ``depths``, e.g. 7-Scenes) add an expected-depth loss on random rays of
+the depth camera (``depth_weight``) and, optionally, start the density from the back-projected
+depth points (``depth_seed_alpha``): a room seen from inside then has its walls from the first
+step, and training samples only near them. ``use_depth=False`` trains on colour only.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from locnerf.field.grid_map import GridMap
 from locnerf.field.map_info import MapInfo
 from locnerf.render.image import render_image
 from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
+from locnerf.train.depth_rays import depth_loss, depth_training_rays
 from locnerf.train.metrics import psnr, psnr_from_mse, ssim
 
 logger = logging.getLogger(__name__)
@@ -66,6 +72,13 @@ class BuildConfig(BaseModel):
         0.03, gt=0, lt=1, description="Occupancy threshold of the saved map (one-step opacity): prunes faint floaters so renders skip more."
     )
     seed: int = Field(0, description="Seed of ray batches and sample jitter.")
+    use_depth: bool = Field(True, description="Use the images' depth (when they have any); False builds from colour only.")
+    depth_weight: float = Field(0.1, ge=0, description="Weight of the expected-depth loss (squared error, map units²) beside the colour MSE.")
+    depth_batch_rays: int = Field(2048, gt=0, description="Depth-camera rays per optimisation step for the depth loss.")
+    depth_seed_alpha: float | None = Field(
+        0.1, gt=0, lt=1, description="One-step opacity given at the start to the vertices nearest to back-projected depth points (None: no seeding)."
+    )
+    depth_seed_points: int = Field(2_000_000, gt=0, description="Most depth points used for seeding (an evenly spaced subset).")
     forward_facing: ForwardFacingConfig = Field(
         default_factory=ForwardFacingConfig, description="Replacements of the settings above for forward-facing (NDC) data."
     )
@@ -116,6 +129,19 @@ def field_box(images: PosedImages, field_origins: torch.Tensor, field_directions
     return box
 
 
+def _depth_rays(images: PosedImages, config: BuildConfig, info: MapInfo, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:
+    """The depth camera's supervised rays (origins, directions, depths) when depth is there and used; None otherwise.
+
+    Raises:
+        ValueError: for depth with NDC data (depth along NDC rays is not the sensor's depth).
+    """
+    if images.depths is None or not config.use_depth:
+        return None
+    if info.normalization.ndc:
+        raise ValueError(f"{images.source}: depth supervision of NDC (forward-facing) maps is not supported; build with use_depth=False")
+    return depth_training_rays(images, device)
+
+
 def _optimizer(field: GridField, config: BuildConfig) -> torch.optim.Optimizer:
     return torch.optim.Adam(
         [
@@ -147,11 +173,19 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
     fine_resolution = field.resolution
     if config.coarse_fraction > 0:
         field.resize(grid_shape_for_box(box, config.field.voxels // 8, config.field.voxel_aspect))
+    depth_rays = _depth_rays(images, config, info, device)
+    if depth_rays is not None and config.depth_seed_alpha is not None:
+        d_origins, d_directions, d_observed = depth_rays
+        every = max(1, len(d_observed) // config.depth_seed_points)
+        points = d_origins[::every] + d_observed[::every, None] * d_directions[::every]
+        occupied = field.seed_density(points, config.depth_seed_alpha)
+        logger.info("seeded the density at %d depth points: %.1f %% of the grid occupied", len(points), 100 * occupied)
     optimizer = _optimizer(field, config)
     start = time.monotonic()
     budget = config.minutes * 60.0 if config.minutes is not None else None
     bar = tqdm(total=config.steps, disable=not progress, desc="build", unit="step")
     smoothed_mse = None
+    depth_history: list[float] = []
     step = 0
     while step < config.steps:
         elapsed = time.monotonic() - start
@@ -168,20 +202,32 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
             field.update_occupancy()
         batch = torch.randint(0, len(origins), (config.batch_rays,), generator=generator, device=device)
         predicted = field.render_training(field_origins[batch], field_directions[batch], directions[batch], generator)
-        loss = torch.mean((predicted - colours[batch]) ** 2)
+        colour_loss = torch.mean((predicted - colours[batch]) ** 2)
+        loss = colour_loss
+        if depth_rays is not None and config.depth_weight > 0:
+            d_origins, d_directions, d_observed = depth_rays
+            d_batch = torch.randint(0, len(d_observed), (config.depth_batch_rays,), generator=generator, device=device)
+            d_loss = depth_loss(field.render_training_depth(d_origins[d_batch], d_directions[d_batch], generator), d_observed[d_batch])
+            loss = loss + config.depth_weight * d_loss
+            depth_history.append(float(d_loss.detach()))
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         step += 1
-        mse = float(loss.detach())
+        mse = float(colour_loss.detach())
         smoothed_mse = mse if smoothed_mse is None else 0.95 * smoothed_mse + 0.05 * mse
         bar.update(1)
         if step % 20 == 0:
-            bar.set_postfix(loss=f"{mse:.5f}", psnr=f"{psnr_from_mse(smoothed_mse):.2f}")
+            bar.set_postfix(loss=f"{mse:.5f}", psnr=f"{psnr_from_mse(smoothed_mse):.2f}", **({"depth_rmse": f"{depth_history[-1] ** 0.5:.3f}"} if depth_history else {}))
     bar.close()
     field.update_occupancy(config.final_occupancy_alpha)
     seconds = time.monotonic() - start
-    info.metadata.update(steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution))
+    info.metadata.update(steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution),
+                         depth_supervised=depth_rays is not None)
+    if depth_history:
+        window = min(50, len(depth_history))
+        info.metadata.update(train_depth_rmse_first=round((sum(depth_history[:window]) / window) ** 0.5, 4),
+                             train_depth_rmse_last=round((sum(depth_history[-window:]) / window) ** 0.5, 4))
     logger.info("built a grid map in %d steps, %.0f s", step, seconds)
     return GridMap(field.eval(), info)
 

@@ -1,0 +1,163 @@
+"""7-Scenes reader: layout, splits, camera axes, depth, and the refusals of bad input (tiny fake scenes)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from locnerf.data import dataset_format, read_dataset, read_seven_scenes
+from locnerf.data.seven_scenes import depth_points
+from locnerf.geometry.frames import opencv_to_opengl
+from locnerf.render.camera import PinholeIntrinsics
+
+WIDTH, HEIGHT = 8, 6
+CAMERA = PinholeIntrinsics(fx=6.0, fy=6.0, cx=4.0, cy=3.0, width=WIDTH, height=HEIGHT)
+
+
+def _pose(index: int) -> np.ndarray:
+    angle = 0.1 * index
+    pose = np.eye(4)
+    pose[:3, :3] = [[np.cos(angle), 0.0, np.sin(angle)], [0.0, 1.0, 0.0], [-np.sin(angle), 0.0, np.cos(angle)]]
+    pose[:3, 3] = [0.1 * index, -0.2, 0.05 * index]
+    return pose
+
+
+def _write_frame(sequence: Path, number: int, depth_size: tuple[int, int] = (WIDTH // 2, HEIGHT // 2)) -> None:
+    stem = sequence / f"frame-{number:06d}"
+    colour = np.full((HEIGHT, WIDTH, 3), 10 * number % 256, np.uint8)
+    cv2.imwrite(f"{stem}.color.png", colour)
+    depth = np.full((depth_size[1], depth_size[0]), 1000 + 100 * number, np.uint16)
+    depth[0, 0] = 0  # invalid reading
+    cv2.imwrite(f"{stem}.depth.png", depth)
+    np.savetxt(f"{stem}.pose.txt", _pose(number))
+
+
+def _fake_scene(root: Path, frames: dict[int, range] | None = None) -> Path:
+    """Two sequences (1: train, 2: test) of 3 frames each, colour 8x6, depth 4x3."""
+    frames = frames or {1: range(0, 3), 2: range(3, 6)}
+    for sequence, numbers in frames.items():
+        folder = root / f"seq-{sequence:02d}"
+        folder.mkdir(parents=True)
+        for number in numbers:
+            _write_frame(folder, number)
+    (root / "TrainSplit.txt").write_text("sequence1\n")
+    (root / "TestSplit.txt").write_text("sequence2\n")
+    return root
+
+
+def test_reads_splits_axes_depth_and_cameras(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    assert dataset_format(root) == "seven_scenes"
+    train = read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
+    test = read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA)
+    assert train.names == ["seq-01/frame-000000", "seq-01/frame-000001", "seq-01/frame-000002"]
+    assert len(test) == 3 and set(train.indices).isdisjoint(test.indices)
+    assert train.images.shape == (3, 3, 4, 3)
+    assert train.intrinsics == CAMERA.scaled(0.5)
+    expected = opencv_to_opengl(torch.from_numpy(np.stack([_pose(i) for i in range(3)])))
+    torch.testing.assert_close(train.T_world_cam, expected)
+    torch.testing.assert_close(train.images[1], torch.full((3, 4, 3), 10 / 255))
+    # Depth stays at its own 4x3 grid, metres, 0 where invalid, with the depth camera (585 px at 8 px wide
+    # is the fallback focal, for a colour camera whose full size is 8x6, halved for the 4x3 depth).
+    assert train.depths.shape == (3, 3, 4)
+    assert float(train.depths[2, 1, 1]) == pytest.approx(1.2)
+    assert float(train.depths[2, 0, 0]) == 0.0
+    assert train.depth_intrinsics.width == 4 and train.depth_intrinsics.fx == pytest.approx(585.0 / 2)
+    assert train.normalization.scale == 1.0 and train.normalization.up == (0.0, -1.0, 0.0)
+    # The box holds every camera centre and every back-projected depth point.
+    points = depth_points(train.depths, train.T_world_cam, train.depth_intrinsics)
+    inside = torch.cat((points, train.T_world_cam[:, :3, 3]))
+    assert bool(((inside >= train.scene_bounds[0]) & (inside <= train.scene_bounds[1])).all())
+    both = read_seven_scenes(root, split="all", downscale=2, stride=2, intrinsics=CAMERA)
+    assert both.names == ["seq-01/frame-000000", "seq-01/frame-000002", "seq-02/frame-000004"]
+
+
+def test_depth_points_lie_along_the_optical_axis() -> None:
+    camera = PinholeIntrinsics(fx=2.0, fy=2.0, cx=1.0, cy=1.0, width=3, height=3)
+    depths = torch.zeros(1, 3, 3)
+    depths[0, 1, 1] = 2.5  # the principal point: straight ahead, along -z in OpenGL axes
+    pose = torch.eye(4, dtype=torch.float64)
+    pose[:3, 3] = torch.tensor([1.0, 2.0, 3.0])
+    points = depth_points(depths, pose[None], camera)
+    torch.testing.assert_close(points, torch.tensor([[1.0, 2.0, 0.5]], dtype=torch.float64))
+
+
+def test_gravity_file_gives_the_up_axis(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    (root / "gravity-direction.txt").write_text("0\n2\n0\n")
+    assert read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA).normalization.up == (0.0, -1.0, 0.0)
+    (root / "gravity-direction.txt").write_text("0\n0\n-1\n")
+    assert read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA).normalization.up == (0.0, 0.0, 1.0)
+
+
+def test_refuses_a_missing_pose(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    (root / "seq-01" / "frame-000001.pose.txt").unlink()
+    with pytest.raises(FileNotFoundError, match=r"frame-000001\.pose\.txt.*4x4 camera-to-world"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
+
+
+def test_refuses_a_non_rigid_pose(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    sheared = _pose(2)
+    sheared[0, 1] = 0.3
+    np.savetxt(root / "seq-01" / "frame-000002.pose.txt", sheared)
+    with pytest.raises(ValueError, match=r"frame-000002\.pose\.txt: not a rigid transform"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
+
+
+def test_refuses_depth_that_is_not_an_integer_fraction_of_colour(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene", {1: range(0, 0), 2: range(3, 6)})
+    _write_frame(root / "seq-01", 0, depth_size=(3, 3))
+    with pytest.raises(ValueError, match=r"frame-000000\.depth\.png: depth 3x3, expected the colour size 8x6 divided by an integer"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
+
+
+def test_refuses_depth_of_mixed_sizes(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    _write_frame(root / "seq-01", 2, depth_size=(8, 6))
+    with pytest.raises(ValueError, match=r"frame-000002\.depth\.png: depth of size 8x6, expected 4x3"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
+
+
+def test_refuses_colour_that_does_not_fit_the_intrinsics(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    with pytest.raises(ValueError, match=r"frame-000000\.color\.png: images about 8x6, expected 640x480"):
+        read_seven_scenes(root, "train", downscale=1)
+
+
+def test_refuses_an_empty_split(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    (root / "TestSplit.txt").write_text("\n")
+    with pytest.raises(ValueError, match=r"TestSplit\.txt: empty split"):
+        read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA)
+    (root / "TestSplit.txt").write_text("sequence2\n")
+    for frame in (root / "seq-02").iterdir():
+        frame.unlink()
+    with pytest.raises(FileNotFoundError, match=r"seq-02: no frame-XXXXXX\.color"):
+        read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA)
+
+
+def test_refuses_an_unknown_split(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    with pytest.raises(ValueError, match=r"split 'val': expected one of \['all', 'test', 'train'\]"):
+        read_seven_scenes(root, "val", downscale=2, intrinsics=CAMERA)
+
+
+def test_real_redkitchen_frames(shared_data: Path) -> None:
+    """A handful of real frames at 80x60: sizes, metric depth in the Kinect's range, gravity from the file."""
+    kitchen = read_dataset(shared_data / "7scenes_redkitchen", split="test", downscale=8, stride=100)
+    assert kitchen.names == [f"seq-02/frame-{n:06d}" for n in (600, 700, 800, 900)]
+    assert kitchen.images.shape == (4, 60, 80, 3) and kitchen.depths.shape == (4, 60, 80)
+    assert kitchen.intrinsics.fx == pytest.approx(525 / 8) and kitchen.depth_intrinsics.fx == pytest.approx(585 / 8)
+    valid = kitchen.depths[kitchen.depths > 0]
+    assert 0.4 < float(valid.min()) and float(valid.max()) < 8.0 and len(valid) > 0.5 * kitchen.depths.numel()
+    # The file's gravity (world frame) is nearly perpendicular to the hand-held camera's x axes (roll
+    # stays small): |cos| < 0.3 (~17 degrees of roll) on every frame.
+    up = torch.tensor(kitchen.normalization.up, dtype=torch.float64)
+    assert float(up.norm()) == pytest.approx(1.0)
+    assert float((kitchen.T_world_cam[:, :3, 0] @ up).abs().max()) < 0.3
