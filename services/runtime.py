@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import collections
 import logging
 import os
@@ -12,6 +13,7 @@ import threading
 import time
 import tomllib
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
@@ -173,3 +175,17 @@ def limit_torch_threads(threads: int) -> None:
     if threads < 1:
         raise ValueError(f"torch_threads {threads}: expected >= 1")
     torch.set_num_threads(threads)
+
+
+def service_main(
+    prog: str,
+    description: str | None,
+    add_arguments: Callable[[argparse.ArgumentParser], None],
+    run: Callable[[argparse.Namespace], int],
+    argv: list[str] | None = None,
+) -> int:
+    """The ``python -m services.<name>`` entry point of one service: parse ``argv``, log at INFO, ``run``."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    add_arguments(parser)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run(parser.parse_args(argv))

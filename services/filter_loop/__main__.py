@@ -19,7 +19,7 @@ from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
 from services.filter_loop.driver import FilterDriver
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
 from services.ros2.config import Ros2Config
-from services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, stop_on_signals
+from services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, service_main, stop_on_signals
 from services.transport import Bus, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
@@ -109,10 +109,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.filter_loop", description=__doc__)
-    add_arguments(parser)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return run(parser.parse_args(argv))
+    return service_main("python -m services.filter_loop", __doc__, add_arguments, run, argv)
 
 
 if __name__ == "__main__":

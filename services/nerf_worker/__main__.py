@@ -17,7 +17,7 @@ from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, encode
 from locnerf.messages.schemas import UpdateRequest
 from services.nerf_worker.service import NerfWorker, RequestError
-from services.runtime import BadMessages, StatusPublisher, default_instance_id, limit_torch_threads, load_service_config, stop_on_signals
+from services.runtime import BadMessages, StatusPublisher, default_instance_id, limit_torch_threads, load_service_config, service_main, stop_on_signals
 from services.transport import Bus, Inbox, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
@@ -104,10 +104,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.nerf_worker", description=__doc__)
-    add_arguments(parser)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return run(parser.parse_args(argv))
+    return service_main("python -m services.nerf_worker", __doc__, add_arguments, run, argv)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ import logging
 import sys
 from pathlib import Path
 
-from services.runtime import stop_on_signals
+from services.runtime import service_main, stop_on_signals
 from services.transport.router import Router, router_config
 
 logger = logging.getLogger(__name__)
@@ -45,10 +45,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.router", description=__doc__)
-    add_arguments(parser)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return run(parser.parse_args(argv))
+    return service_main("python -m services.router", __doc__, add_arguments, run, argv)
 
 
 if __name__ == "__main__":

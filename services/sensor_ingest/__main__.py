@@ -29,6 +29,7 @@ from services.runtime import (
     limit_torch_threads,
     load_service_config,
     prefer_latency_over_throughput,
+    service_main,
     stop_on_signals,
 )
 from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
@@ -212,10 +213,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.sensor_ingest", description=__doc__)
-    add_arguments(parser)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return run(parser.parse_args(argv))
+    return service_main("python -m services.sensor_ingest", __doc__, add_arguments, run, argv)
 
 
 if __name__ == "__main__":
