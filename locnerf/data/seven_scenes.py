@@ -1,4 +1,4 @@
-"""Microsoft 7-Scenes RGB-D sequences: ``seq-XX/frame-XXXXXX.{color.png|color.jpg,depth.png,pose.txt}``.
+"""Microsoft 7-Scenes RGB-D sequences: ``seq-NN/frame-NNNNNN.{color.png|color.jpg,depth.png,pose.txt}``.
 
 Layout: ``TrainSplit.txt`` / ``TestSplit.txt`` name sequences (``sequence1`` -> ``seq-01/``); each
 frame has a colour image (640×480), a depth image (uint16 millimetres, 0 or 65535 = no reading;
@@ -81,10 +81,10 @@ def _sequence_folders(folder: Path, split: str) -> list[Path]:
 
 
 def _frame_stems(sequence: Path) -> list[Path]:
-    """``seq-XX/frame-XXXXXX`` stems of a sequence's colour images, sorted."""
+    """``seq-NN/frame-NNNNNN`` stems of a sequence's colour images, sorted."""
     stems = sorted({p.parent / p.name.split(".")[0] for p in sequence.glob("frame-*.color.*") if p.suffix.lower() in (".png", ".jpg", ".jpeg")})
     if not stems:
-        raise FileNotFoundError(f"{sequence}: no frame-XXXXXX.color.png/.jpg images")
+        raise FileNotFoundError(f"{sequence}: no frame-NNNNNN.color.png/.jpg images")
     return stems
 
 

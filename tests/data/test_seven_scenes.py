@@ -138,7 +138,7 @@ def test_refuses_an_empty_split(tmp_path: Path) -> None:
     (root / "TestSplit.txt").write_text("sequence2\n")
     for frame in (root / "seq-02").iterdir():
         frame.unlink()
-    with pytest.raises(FileNotFoundError, match=r"seq-02: no frame-XXXXXX\.color"):
+    with pytest.raises(FileNotFoundError, match=r"seq-02: no frame-NNNNNN\.color"):
         read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA)
 
 
