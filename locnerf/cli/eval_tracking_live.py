@@ -25,7 +25,7 @@ import torch
 
 from locnerf.cli.map_source import WORLD, open_map
 from locnerf.cli.services_link import transport
-from locnerf.cli.up import free_port, service_commands, stop_processes
+from locnerf.cli.up import free_port, service_commands, stop_processes, write_config_files
 from locnerf.eval.tracking import ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_summary
 from locnerf.messages import keys
@@ -74,7 +74,6 @@ def write_configs(args: argparse.Namespace, folder: Path, image_rate: float, vio
     The ingest produces its whole stream (``events`` events) before the clock starts, as the load
     test does, so reading or rendering frames does not load the machine under test.
     """
-    folder.mkdir(parents=True, exist_ok=True)
     map_spec = args.map if args.map == WORLD else str(Path(args.map).resolve())
     localizer = str(Path(args.config).resolve()) if args.config is not None else args.preset
     files = {
@@ -82,10 +81,7 @@ def write_configs(args: argparse.Namespace, folder: Path, image_rate: float, vio
         "filter": _toml({"": {"map": map_spec}}),
         "worker": _toml({"": {"map": map_spec}}),
     }
-    paths = {}
-    for name, text in files.items():
-        paths[name] = folder / f"{name}.toml"
-        paths[name].write_text(text)
+    paths = write_config_files(folder, files)
     return argparse.Namespace(
         robot_id=ROBOT_ID, device=args.device, workers=args.workers, localizer=localizer, seed=args.seed,
         filter_config=paths["filter"], worker_config=paths["worker"], ingest_config=paths["ingest"], duration=0.0, speed=1.0, stream_margin=0.0,

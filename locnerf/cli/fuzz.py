@@ -32,7 +32,7 @@ import psutil
 from hypothesis import HealthCheck, Phase, given, seed, settings
 
 from locnerf.cli.services_link import transport
-from locnerf.cli.up import free_port, stop_processes
+from locnerf.cli.up import free_port, stop_processes, write_config_files
 from locnerf.eval.fuzz_payloads import ACCEPTED, TARGETS, FuzzTarget, Hostile
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
@@ -185,7 +185,6 @@ def compare_counts(target: FuzzTarget, sent: collections.Counter[tuple[str, str]
 
 
 def _write_configs(folder: Path, robot: str) -> dict[str, Path]:
-    folder.mkdir(parents=True, exist_ok=True)
     texts = {
         "filter": f'robot_id = "{robot}"\nmap = "world"\ndevice = "cpu"\n',
         "worker": f'robot_id = "{robot}"\nmap = "world"\ndevice = "cpu"\nworker_id = "fuzzed"\n',
@@ -193,11 +192,7 @@ def _write_configs(folder: Path, robot: str) -> dict[str, Path]:
         "ingest": f'robot_id = "{robot}"\ningest_id = "stream"\n[world]\ncamera_rate = 1e-9\nduration = 86400.0\n',
         "ingest_waiting": f'robot_id = "{robot}"\ningest_id = "{WAITING_INGEST}"\nwait_for_workers = 1000\nwait_timeout = 86400.0\n',
     }
-    paths = {}
-    for name, text in texts.items():
-        paths[name] = folder / f"{name}.toml"
-        paths[name].write_text(text)
-    return paths
+    return write_config_files(folder, texts)
 
 
 def _check_alive(processes: dict[str, subprocess.Popen], folder: Path) -> None:

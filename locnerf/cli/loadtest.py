@@ -24,7 +24,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.cli.services_link import transport
-from locnerf.cli.up import free_port, service_commands, stop_processes
+from locnerf.cli.up import free_port, service_commands, stop_processes, write_config_files
 from locnerf.eval.loadtest_process import ProcessSample, process_usage, read_process_sample
 from locnerf.eval.loadtest_recorder import LoadRecorder
 from locnerf.eval.loadtest_sweep import plot_sweep, write_sweep_csv
@@ -96,7 +96,6 @@ _STREAM_MARGIN_S = 5.0
 def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
     """Write the localizer, ingest, filter and worker TOMLs of ``case`` into ``folder``; the
     namespace ``locnerf.cli.up.service_commands`` expects."""
-    folder.mkdir(parents=True, exist_ok=True)
     stream_seconds = case.warmup + case.duration + case.settle + _STREAM_MARGIN_S
     # World stream events: a ground truth and an odometry message per odometry stamp, an image per frame.
     events = math.ceil(stream_seconds * (2 * case.input_odometry_rate + case.input_camera_rate)) + 8
@@ -110,10 +109,7 @@ def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
         "filter": f"map = {json.dumps(case.map)}\n",
         "worker": f"map = {json.dumps(case.map)}\n",
     }
-    paths = {}
-    for name, text in files.items():
-        paths[name] = folder / f"{name}.toml"
-        paths[name].write_text(text)
+    paths = write_config_files(folder, files)
     return argparse.Namespace(
         robot_id=case.robot_id, device=case.device, workers=case.workers, localizer=str(paths["localizer"]), seed=case.seed,
         filter_config=paths["filter"], worker_config=paths["worker"], ingest_config=paths["ingest"], duration=stream_seconds, speed=1.0, stream_margin=0.0,

@@ -140,6 +140,15 @@ def plot_run(record: RunRecord, path: Path) -> Path:
     return path
 
 
+def write_config_files(folder: Path, texts: dict[str, str]) -> dict[str, Path]:
+    """Write each service's TOML text to ``folder/<name>.toml``; the paths by name."""
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {name: folder / f"{name}.toml" for name in texts}
+    for name, text in texts.items():
+        paths[name].write_text(text)
+    return paths
+
+
 def stop_processes(processes: dict[str, subprocess.Popen]) -> None:
     """SIGINT every child, then wait; SIGKILL the ones still running after the timeout."""
     for process in processes.values():
