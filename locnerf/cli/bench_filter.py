@@ -27,7 +27,6 @@ import numpy as np
 import torch
 
 from locnerf.cli.bench_table import BenchTable
-from locnerf.cli.map_source import open_map
 from locnerf.devices import resolve_device
 from locnerf.filter.estimate import estimate_from_particles
 from locnerf.filter.measurement import particle_log_likelihoods, sample_pixels
@@ -36,6 +35,7 @@ from locnerf.filter.particles import ParticleSet
 from locnerf.filter.resampling import multinomial_resample, systematic_resample
 from locnerf.geometry import se3_exp
 from locnerf.geometry.averaging import geodesic_rotation_mean
+from locnerf.maps.source import open_map
 from locnerf.messages.codec import decode, decode_image, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, UpdateRequest, UpdateResult
 

@@ -10,12 +10,12 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from locnerf.cli.map_source import open_map
 from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
 from locnerf.eval.paper_logs import read_logged_trials
 from locnerf.eval.plots import plot_error_curves, plot_images_beside_renders, plot_mean_error_against_rays, plot_success_against_rays
+from locnerf.maps.source import open_map
 from locnerf.eval.real_data import (
     logged_curve,
     logged_views,

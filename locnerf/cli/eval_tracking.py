@@ -10,7 +10,6 @@ from pathlib import Path
 import torch
 
 from locnerf.cli.eval_tracking_live import run_live
-from locnerf.cli.map_source import WORLD, open_map, recovery_keyframes
 from locnerf.config import load_config, preset
 from locnerf.data import read_nerf_synthetic
 from locnerf.devices import resolve_device
@@ -27,6 +26,8 @@ from locnerf.eval.tracking_plots import plot_tracking_errors
 from locnerf.eval.tracking_source import CameraPath, ScenarioConfig, SequencePath, WorldPath, build_scenario
 from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer, LocalizerConfig
+from locnerf.maps.keyframes import recovery_keyframes
+from locnerf.maps.source import WORLD, open_map
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld

@@ -8,11 +8,11 @@ import logging
 
 import torch
 
-from locnerf.cli.map_source import open_map, target_views
 from locnerf.config import load_config, preset
 from locnerf.devices import resolve_device
 from locnerf.eval.single_image import TrialConfig, run_trials, summarize
 from locnerf.filter import Localizer, LocalizerConfig
+from locnerf.maps.source import open_map, target_views
 
 logger = logging.getLogger(__name__)
 

@@ -10,7 +10,7 @@ appearance instead of by the luck of uniform draws.
 Thumbnails are ``width`` pixels wide (the height keeps the camera's aspect). The map's views are
 rendered (by the caller: the filter reaches rendering only through the measurement model) at
 ``supersample`` times that resolution and area-averaged, as the query image is, so both sides are
-low-passed alike; :func:`locnerf.cli.map_source.build_keyframe_index` does both.
+low-passed alike; :func:`locnerf.maps.keyframes.build_keyframe_index` does both.
 """
 
 from __future__ import annotations

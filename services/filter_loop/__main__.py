@@ -12,10 +12,11 @@ from pathlib import Path
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.cli.map_source import open_map, recovery_keyframes
 from locnerf.config import PRESETS, load_config, preset
 from locnerf.devices import resolve_device
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
+from locnerf.maps.keyframes import recovery_keyframes
+from locnerf.maps.source import open_map
 from services.filter_loop.driver import FilterDriver
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
 from services.ros2.config import Ros2Config

@@ -11,8 +11,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.cli.map_source import open_map
 from locnerf.devices import resolve_device
+from locnerf.maps.source import open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, encode
 from locnerf.messages.schemas import UpdateRequest

@@ -166,7 +166,7 @@ def test_cli_builds_the_keyframe_index_when_recovery_draws_around_keyframes(tmp_
     config = tmp_path / "keyframes.toml"
     config.write_text('preset = "tracking"\n[recovery]\nkeyframe_share = 0.8\n')
     arguments = ["eval", "tracking", "--map", "world", "--sequence", "world", "--duration", "1.0", "--init", "gaussian", "--quiet"]
-    with caplog.at_level(logging.INFO, logger="locnerf.cli.map_source"):
+    with caplog.at_level(logging.INFO, logger="locnerf.maps.keyframes"):
         assert main([*arguments, "--config", str(config)]) == 0
         assert "keyframe index: 200 keyframes" in caplog.text
         caplog.clear()

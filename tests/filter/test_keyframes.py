@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from locnerf.cli.map_source import build_keyframe_index
 from locnerf.filter.keyframes import nearest_neighbour_spacing, thumbnail_descriptors, thumbnail_shape
 from locnerf.geometry import make_pose, se3_exp
+from locnerf.maps.keyframes import build_keyframe_index
 from locnerf.sim.world import ProceduralWorld
 
 

@@ -12,10 +12,10 @@ import torch
 from locnerf.config import preset
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import carry_estimate
-from locnerf.cli.map_source import build_keyframe_index
 from locnerf.filter.localizer import Localizer, SearchRegion
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
+from locnerf.maps.keyframes import build_keyframe_index
 from locnerf.messages import keys
 from locnerf.messages.codec import SCHEMA_VERSION, decode, encode, encode_image
 from locnerf.messages.schemas import (

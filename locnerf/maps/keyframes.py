@@ -1,10 +1,10 @@
-"""Opening the map a command names, the target views of single-image trials, and keyframes."""
+"""The keyframe index of a map: thumbnails rendered at its reference poses (or at random poses of
+the procedural world), for the filter's recovery draws around keyframes."""
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterator
 
 import torch
 
@@ -13,21 +13,10 @@ from locnerf.filter.keyframes import KeyframeIndex, index_from_views, thumbnail_
 from locnerf.filter.localizer import LocalizerConfig
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.render.image import RenderRays, render_image, render_views
+from locnerf.render.image import RenderRays, render_views
 from locnerf.sim.world import ProceduralWorld
 
-WORLD = "world"
-
 logger = logging.getLogger(__name__)
-
-
-def open_map(spec: str, device: torch.device) -> RadianceMap:
-    """``world`` -> the default procedural world; anything else -> a map file."""
-    if spec == WORLD:
-        return ProceduralWorld.default(device)
-    from locnerf.field.map_file import load_map
-
-    return load_map(spec, device)
 
 
 def keyframe_poses(radiance_map: RadianceMap, generator: torch.Generator, world_count: int = 200) -> torch.Tensor:
@@ -60,19 +49,3 @@ def recovery_keyframes(config: LocalizerConfig, radiance_map: RadianceMap, intri
     index = build_keyframe_index(radiance_map.render_rays, poses.to(radiance_map.device), intrinsics)
     logger.info("keyframe index: %d keyframes, spacing %.3f map units, built in %.2f s", len(index), index.spacing, time.perf_counter() - started)
     return index
-
-
-def target_views(radiance_map: RadianceMap, count: int, generator: torch.Generator) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
-    """``count`` (true pose (4, 4) float64, image (H, W, 3)) pairs rendered by the map itself.
-
-    The world draws random plausible poses; a map file uses the camera poses it was built from,
-    in a seeded random order.
-    """
-    if isinstance(radiance_map, ProceduralWorld):
-        poses = [radiance_map.sample_camera_pose(generator) for _ in range(count)]
-    else:
-        stored = radiance_map.reference_poses()
-        order = torch.randperm(stored.shape[0], generator=generator)
-        poses = [stored[order[i % len(order)]].double() for i in range(count)]
-    for pose in poses:
-        yield pose, render_image(radiance_map.render_rays, pose.to(radiance_map.device, torch.float32), radiance_map.default_intrinsics)
