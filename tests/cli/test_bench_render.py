@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from locnerf.cli.main import main
+from cli.main import main
 from locnerf.field.grid import GridField, GridFieldConfig
 from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import save_map

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from locnerf.cli.main import main
+from cli.main import main
 
 REQUIRED_KEYS = {"success_rate", "median_translation_error", "median_rotation_error_deg", "mean_seconds_per_trial", "forward_passes"}
 

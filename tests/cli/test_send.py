@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from locnerf.cli.main import build_parser
-from locnerf.cli.send import _command
+from cli.main import build_parser
+from cli.send import _command
 from locnerf.messages.schemas import InitialPoseCommand
 
 POSE = ["1", "0", "0", "-1.5e-05", "0", "1", "0", "-2.", "0", "0", "1", "-.25", "0", "0", "0", "1"]

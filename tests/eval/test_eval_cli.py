@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from locnerf.cli.main import main
+from cli.main import main
 from locnerf.data import read_dataset
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.map_file import save_map

@@ -8,7 +8,7 @@ import logging
 import pytest
 import torch
 
-from locnerf.cli.main import main
+from cli.main import main
 from locnerf.config import preset
 from locnerf.eval.tracking import (
     ConvergenceConfig,

@@ -78,7 +78,7 @@ class Stack:
         }
 
     def start(self, name: str, *arguments: str, environment: dict[str, str] | None = None) -> subprocess.Popen:
-        command = [sys.executable, "-m", "locnerf.cli.main", "-v", *arguments]
+        command = [sys.executable, "-m", "cli.main", "-v", *arguments]
         log = open(self.logs / f"{name}.log", "a")
         process = subprocess.Popen(command, env=environment or self.environment, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
         log.close()

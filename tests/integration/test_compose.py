@@ -20,7 +20,7 @@ import pytest
 import zenoh
 from ruamel.yaml import YAML
 
-from locnerf.cli.certs import make_certificates
+from cli.certs import make_certificates
 from tests.integration.conftest import REPO, Observer, Stack, wait_for, watch
 from tests.integration.routing import SECURE, open_client, start_router, tls_for
 from tests.services.helpers import free_port

@@ -25,7 +25,7 @@ HEADLINE_KEYS = (
 @pytest.mark.slow
 def test_live_tracking_in_the_world_reports_every_key_and_tracks(tmp_path):
     command = [
-        sys.executable, "-m", "locnerf.cli.main", "eval", "tracking", "--map", "world", "--sequence", "world", "--live",
+        sys.executable, "-m", "cli.main", "eval", "tracking", "--map", "world", "--sequence", "world", "--live",
         "--duration", "14", "--kidnap-at", "12", "--image-rate", "5", "--device", "cpu", "--seed", "0", "--json", "--logs", str(tmp_path),
     ]
     finished = subprocess.run(command, capture_output=True, text=True, timeout=300)

@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from locnerf.cli.certs import make_certificates
+from cli.certs import make_certificates
 from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import GlobalLocalizationCommand

@@ -137,7 +137,7 @@ def test_send_and_echo_commands(hub, tmp_path):
     stack, observer, _ = hub
     start_services(stack, ("wa",), filter_config(tmp_path))
     wait_for(lambda: len(errors(observer, observer.poses[-1:])) == 1, 120, "a pose with ground truth", stack)
-    cli = [sys.executable, "-m", "locnerf.cli.main"]
+    cli = [sys.executable, "-m", "cli.main"]
     connect = ["--robot-id", ROBOT, "--connect", stack.endpoint]
     echo = subprocess.run(cli + ["echo", "pose", "--count", "6", "--timeout", "60", *connect], capture_output=True, text=True, timeout=120, cwd=REPO)
     lines = [line for line in echo.stdout.splitlines() if "xyz=" in line]

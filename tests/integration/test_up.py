@@ -16,7 +16,7 @@ from tests.integration.conftest import REPO
 
 def test_up_runs_everything_and_prints_a_summary(tmp_path):
     plot = tmp_path / "run.png"
-    command = [sys.executable, "-m", "locnerf.cli.main", "up", "--duration", "10", "--json", "--port", "0", "--logs", str(tmp_path), "--plot", str(plot)]
+    command = [sys.executable, "-m", "cli.main", "up", "--duration", "10", "--json", "--port", "0", "--logs", str(tmp_path), "--plot", str(plot)]
     result = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=REPO)
     assert result.returncode == 0, result.stderr + "".join(p.read_text()[-2000:] for p in tmp_path.glob("*.log"))
     summary = json.loads(result.stdout.strip().splitlines()[-1])

@@ -12,7 +12,7 @@ def test_overload_loses_no_odometry_and_replaces_images(tmp_path):
     # the filter cannot take every image, so newest-only must replace some. (At 60 x 16 the filter took
     # 50 Hz images one by one on a quiet machine, and replaced none.)
     command = [
-        sys.executable, "-m", "locnerf.cli.main", "loadtest", "--overload", "10", "--particles", "300", "--pixels", "64",
+        sys.executable, "-m", "cli.main", "loadtest", "--overload", "10", "--particles", "300", "--pixels", "64",
         "--camera-rate", "30", "--duration", "3", "--warmup", "1", "--memory-period", "1", "--device", "cpu", "--out", str(tmp_path), "--json",
     ]
     finished = subprocess.run(command, capture_output=True, text=True, timeout=240)

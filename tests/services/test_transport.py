@@ -128,7 +128,7 @@ def test_zenoh_bus_on_loopback_carries_attachments_and_answers_queries():
 
 @pytest.fixture(scope="module")
 def certificates(tmp_path_factory):
-    from locnerf.cli.certs import make_certificates
+    from cli.certs import make_certificates
 
     folder = tmp_path_factory.mktemp("certs")
     make_certificates(folder, roles=("filter",))

@@ -23,8 +23,8 @@ from typing import Any
 
 import torch
 
-from locnerf.cli.services_link import transport
-from locnerf.cli.up import free_port, service_commands, stop_processes, write_config_files
+from cli.services_link import transport
+from cli.up import free_port, service_commands, stop_processes, write_config_files
 from locnerf.eval.tracking import ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_summary
 from locnerf.maps.source import WORLD, open_map

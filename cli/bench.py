@@ -2,11 +2,11 @@
 
 * ``render`` (here) times a map's ``render_rays`` on the ray batches of the filter's update step
   (particles × pixels) against the nerf-pytorch-shaped MLP on the same rays;
-* ``world`` (``locnerf.cli.bench_world``) times the procedural world's ray renderer;
-* ``filter`` (``locnerf.cli.bench_filter``) times the filter's hot paths: likelihood, prediction,
+* ``world`` (``cli.bench_world``) times the procedural world's ray renderer;
+* ``filter`` (``cli.bench_filter``) times the filter's hot paths: likelihood, prediction,
   resampling, rotation averaging, estimate, message encode/decode.
 
-``world`` and ``filter`` print a table (``locnerf.cli.bench_table``) or JSON lines.
+``world`` and ``filter`` print a table (``cli.bench_table``) or JSON lines.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import torch
 
-from locnerf.cli import bench_filter, bench_world
+from cli import bench_filter, bench_world
 from locnerf.devices import resolve_device
 from locnerf.field.map_file import load_map
 from locnerf.field.nerf_pytorch import NerfMLP, NerfPytorchMap

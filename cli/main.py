@@ -9,17 +9,17 @@ import sys
 
 # Each module registers its subcommand(s) with ``register(subparsers)`` and sets ``func`` on them.
 SUBCOMMAND_MODULES = (
-    "locnerf.cli.eval",
-    "locnerf.cli.localize",
-    "locnerf.cli.map",
-    "locnerf.cli.bench",
-    "locnerf.cli.run",
-    "locnerf.cli.up",
-    "locnerf.cli.echo",
-    "locnerf.cli.send",
-    "locnerf.cli.loadtest",
-    "locnerf.cli.certs",
-    "locnerf.cli.fuzz",
+    "cli.eval",
+    "cli.localize",
+    "cli.map",
+    "cli.bench",
+    "cli.run",
+    "cli.up",
+    "cli.echo",
+    "cli.send",
+    "cli.loadtest",
+    "cli.certs",
+    "cli.fuzz",
 )
 
 

@@ -14,7 +14,7 @@ Targets (all at ``--particles`` N and ``--pixels`` M):
 
 Each row is ``target  median_ms  p90_ms  calls_per_s`` over ``--repeats`` timed calls after one
 untimed call (``--json``: one JSON object per line with the same fields and the settings), so two
-runs can be compared line by line (``locnerf.cli.bench_table``).
+runs can be compared line by line (``cli.bench_table``).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from locnerf.cli.bench_table import BenchTable
+from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
 from locnerf.filter.estimate import estimate_from_particles
 from locnerf.filter.measurement import particle_log_likelihoods, sample_pixels

@@ -6,7 +6,7 @@ import argparse
 
 import torch
 
-from locnerf.cli.bench_table import BenchTable
+from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
 from locnerf.sim.benchmark import benchmark_world
 

@@ -31,8 +31,8 @@ from pathlib import Path
 import psutil
 from hypothesis import HealthCheck, Phase, given, seed, settings
 
-from locnerf.cli.services_link import transport
-from locnerf.cli.up import free_port, stop_processes, write_config_files
+from cli.services_link import transport
+from cli.up import free_port, stop_processes, write_config_files
 from locnerf.eval.fuzz_payloads import ACCEPTED, TARGETS, FuzzTarget, Hostile
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
@@ -252,7 +252,7 @@ def run_fuzz(args: argparse.Namespace) -> dict[str, object]:
         bus.subscribe(keys.key(robot, keys.INGEST_STATUS, ingest_id="*"), lambda _k, p: observations.on_service(p)),
         bus.subscribe(keys.key(robot, keys.POSE), lambda _k, p: observations.on_pose(p)),
     ]
-    base = [sys.executable, "-m", "locnerf.cli.main", "-v", "run"]
+    base = [sys.executable, "-m", "cli.main", "-v", "run"]
     commands = {
         "filter": base + ["filter", "--config", str(paths["filter"])],
         "worker": base + ["worker", "--config", str(paths["worker"])],

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from locnerf.cli.eval_tracking_live import run_live
+from cli.eval_tracking_live import run_live
 from locnerf.config import load_config, preset
 from locnerf.data import read_nerf_synthetic
 from locnerf.devices import resolve_device

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from locnerf.cli.monitor import GroundTruthMatcher, pose_line
-from locnerf.cli.services_link import add_bus_arguments, open_cli_bus, transport
+from cli.monitor import GroundTruthMatcher, pose_line
+from cli.services_link import add_bus_arguments, open_cli_bus, transport
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import PoseEstimate, PoseStamped

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from locnerf.cli.services_link import SERVICE_MODULES, service_module
+from cli.services_link import SERVICE_MODULES, service_module
 
 _HELP = {
     "ingest": "publish a sensor stream (procedural world along a trajectory)",

@@ -23,8 +23,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.cli.services_link import transport
-from locnerf.cli.up import free_port, service_commands, stop_processes, write_config_files
+from cli.services_link import transport
+from cli.up import free_port, service_commands, stop_processes, write_config_files
 from locnerf.eval.loadtest_process import ProcessSample, process_usage, read_process_sample
 from locnerf.eval.loadtest_recorder import LoadRecorder
 from locnerf.eval.loadtest_sweep import plot_sweep, write_sweep_csv
@@ -95,7 +95,7 @@ _STREAM_MARGIN_S = 5.0
 
 def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
     """Write the localizer, ingest, filter and worker TOMLs of ``case`` into ``folder``; the
-    namespace ``locnerf.cli.up.service_commands`` expects."""
+    namespace ``cli.up.service_commands`` expects."""
     stream_seconds = case.warmup + case.duration + case.settle + _STREAM_MARGIN_S
     # World stream events: a ground truth and an odometry message per odometry stamp, an image per frame.
     events = math.ceil(stream_seconds * (2 * case.input_odometry_rate + case.input_camera_rate)) + 8

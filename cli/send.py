@@ -11,7 +11,7 @@ import re
 import sys
 import time
 
-from locnerf.cli.services_link import add_bus_arguments, open_cli_bus, transport
+from cli.services_link import add_bus_arguments, open_cli_bus, transport
 from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import GlobalLocalizationCommand, InitialPoseCommand

@@ -19,8 +19,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from locnerf.cli.monitor import GroundTruthMatcher, PoseError, pose_line
-from locnerf.cli.services_link import DEFAULT_PORT, transport
+from cli.monitor import GroundTruthMatcher, PoseError, pose_line
+from cli.services_link import DEFAULT_PORT, transport
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, PoseStamped
@@ -60,7 +60,7 @@ def service_commands(args: argparse.Namespace) -> dict[str, list[str]]:
 
     The ingest streams ``duration · speed + stream_margin`` sensor seconds (``locnerf up`` keeps a
     minute beyond its run; the load test passes the exact length it measures)."""
-    base = [sys.executable, "-m", "locnerf.cli.main", "-v", "run"]
+    base = [sys.executable, "-m", "cli.main", "-v", "run"]
     robot = ["--robot-id", args.robot_id]
     worker = base + ["worker", *robot, "--device", args.device] + (["--config", str(args.worker_config)] if args.worker_config else [])
     commands = {f"worker{i}": worker + ["--worker-id", f"worker{i}"] for i in range(args.workers)}

@@ -10,8 +10,8 @@ import argparse
 import importlib
 
 EXPERIMENT_MODULES = (
-    "locnerf.cli.eval_single_image",
-    "locnerf.cli.eval_tracking",
+    "cli.eval_single_image",
+    "cli.eval_tracking",
 )
 
 
