@@ -26,9 +26,8 @@ from locnerf.field.nerf_pytorch import NerfMLP, NerfPytorchMap
 from locnerf.render.rays import rays_from_poses_and_pixels
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``bench`` and its targets."""
-    parser = subparsers.add_parser("bench", help="micro-benchmarks: render (a map), world (the procedural world), filter (hot paths)")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf bench`` and its targets."""
     targets = parser.add_subparsers(dest="bench_target", required=True)
     render = targets.add_parser("render", help="update-step rendering speed of a map vs the nerf-pytorch MLP")
     render.add_argument("--map", required=True, help="map file")

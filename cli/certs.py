@@ -114,8 +114,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("certs", help="a test CA and per-service TLS certificates (CN = role) for Zenoh")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf certs``."""
     parser.add_argument("--out", type=Path, default=Path("deploy/certs"), help="folder to write into (default deploy/certs)")
     parser.add_argument("--roles", nargs="+", default=list(ROLES), help=f"common names to certify (default: {' '.join(ROLES)})")
     parser.add_argument("--days", type=int, default=365, help="validity in days (default 365)")

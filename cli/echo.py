@@ -5,15 +5,16 @@ from __future__ import annotations
 import argparse
 import time
 
+from cli.bus_client import add_bus_arguments, open_cli_bus
 from cli.monitor import GroundTruthMatcher, pose_line
-from cli.services_link import add_bus_arguments, open_cli_bus, transport
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import PoseEstimate, PoseStamped
+from services.transport import Inbox
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("echo", help="print a topic (pose)")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf echo``."""
     parser.add_argument("topic", choices=["pose"], help="what to print")
     parser.add_argument("--count", type=int, default=0, help="stop after this many poses (0: until Ctrl-C)")
     parser.add_argument("--timeout", type=float, default=0.0, help="stop after this many seconds (0: no limit)")
@@ -22,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    inbox = transport().Inbox(capacity=256)
+    inbox = Inbox(capacity=256)
     matcher = GroundTruthMatcher()
     bus = open_cli_bus(args.connect)
     handles = [

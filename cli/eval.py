@@ -1,22 +1,20 @@
 """``locnerf eval <experiment>``: the paper's experiments on real data.
 
 Each experiment lives in its own module exposing ``register(subparsers)``; this group only
-collects them, so adding an experiment means adding its module to ``EXPERIMENT_MODULES``.
+collects them, so adding an experiment means adding its module to ``EXPERIMENTS``.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 
-EXPERIMENT_MODULES = (
-    "cli.eval_single_image",
-    "cli.eval_tracking",
-)
+from cli import eval_single_image, eval_tracking
+
+EXPERIMENTS = (eval_single_image, eval_tracking)
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("eval", help="the paper's experiments (single image, global, tracking)")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf eval``: one sub-subcommand per experiment."""
     experiments = parser.add_subparsers(dest="experiment", required=True)
-    for name in EXPERIMENT_MODULES:
-        importlib.import_module(name).register(experiments)
+    for module in EXPERIMENTS:
+        module.register(experiments)

@@ -23,7 +23,6 @@ from typing import Any
 
 import torch
 
-from cli.services_link import transport
 from cli.up import free_port, service_commands, stop_processes, write_config_files
 from locnerf.eval.tracking import ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_summary
@@ -31,6 +30,7 @@ from locnerf.maps.source import WORLD, open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
 from locnerf.messages.schemas import Odometry, PoseEstimate, PoseStamped, UpdateResult
+from services.transport import Inbox, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
 
@@ -108,11 +108,10 @@ def record_run(args: argparse.Namespace, namespace: argparse.Namespace, folder: 
     Raises:
         RuntimeError: a service failed, or no pose within ``STARTUP_TIMEOUT_S``.
     """
-    module = transport()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = module.open_bus(module.TransportConfig(listen=(endpoint,)))
+    bus = open_bus(TransportConfig(listen=(endpoint,)))
     environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
-    inbox = module.Inbox(capacity=1 << 17)
+    inbox = Inbox(capacity=1 << 17)
     topics = {
         "odometry": keys.key(ROBOT_ID, keys.ODOMETRY),
         "truth": keys.key(ROBOT_ID, keys.GROUND_TRUTH),

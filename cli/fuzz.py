@@ -31,12 +31,12 @@ from pathlib import Path
 import psutil
 from hypothesis import HealthCheck, Phase, given, seed, settings
 
-from cli.services_link import transport
 from cli.up import free_port, stop_processes, write_config_files
 from locnerf.eval.fuzz_payloads import ACCEPTED, TARGETS, FuzzTarget, Hostile
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, ServiceStatus
+from services.transport import TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
 
@@ -46,8 +46,8 @@ SETTLE_TIMEOUT_S = 20.0
 WAITING_INGEST = "waiting"
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("fuzz", help="hostile payloads on every subscribed key of running services; checks counts, memory, pose rate")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf fuzz``."""
     parser.add_argument("--payloads", type=int, default=10_000, help="payloads per subscribed key")
     parser.add_argument("--rate", type=float, default=1000.0, help="payloads per second at most")
     parser.add_argument("--seed", type=int, default=0, help="seed of the Hypothesis draws")
@@ -241,9 +241,8 @@ def run_fuzz(args: argparse.Namespace) -> dict[str, object]:
     robot = "fuzz"
     folder: Path = args.out
     paths = _write_configs(folder, robot)
-    module = transport()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = module.open_bus(module.TransportConfig(listen=(endpoint,), block_when_congested=True))
+    bus = open_bus(TransportConfig(listen=(endpoint,), block_when_congested=True))
     environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
     observations = Observations()
     handles = [

@@ -23,13 +23,13 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from cli.services_link import transport
 from cli.up import free_port, service_commands, stop_processes, write_config_files
 from locnerf.eval.loadtest_process import ProcessSample, process_usage, read_process_sample
 from locnerf.eval.loadtest_recorder import LoadRecorder
 from locnerf.eval.loadtest_sweep import plot_sweep, write_sweep_csv
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError
+from services.transport import Inbox, TransportConfig, open_bus
 
 FIRST_POSE_TIMEOUT_S = 180.0
 
@@ -139,11 +139,10 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
     Raises:
         RuntimeError: no pose within ``FIRST_POSE_TIMEOUT_S`` or a service exited early.
     """
-    module = transport()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = module.open_bus(module.TransportConfig(listen=(endpoint,)))
+    bus = open_bus(TransportConfig(listen=(endpoint,)))
     environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
-    inbox = module.Inbox(capacity=65536)
+    inbox = Inbox(capacity=65536)
     topics = {
         "odometry": keys.key(case.robot_id, keys.ODOMETRY),
         "image": keys.key(case.robot_id, keys.IMAGE),
@@ -260,8 +259,8 @@ def _int_list(text: str) -> list[int]:
     return values
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("loadtest", help="drive the services with a synthetic stream; rates, latency, jitter, losses, CPU")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf loadtest``."""
     parser.add_argument("--particles", type=_int_list, default=[300], help="particle count(s), comma-separated for a sweep")
     parser.add_argument("--pixels", type=_int_list, default=[64], help="pixels per particle, comma-separated for a sweep")
     parser.add_argument("--workers", type=_int_list, default=[1], help="worker count(s), comma-separated for a sweep")

@@ -19,8 +19,8 @@ logger = logging.getLogger(__name__)
 DEFAULT_PRESET = {"inerf": "llff", "global": "llff_global"}
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("localize", help="single-image localization trials (paper protocols)")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf localize``."""
     parser.add_argument("--map", default="world", help="'world' (the procedural world) or a map file")
     parser.add_argument("--protocol", choices=("inerf", "global"), default="inerf", help="initial distribution")
     parser.add_argument("--trials", type=int, default=20, help="number of trials")

@@ -25,9 +25,8 @@ from locnerf.train import BuildConfig, build_map, evaluate_map, psnr
 logger = logging.getLogger(__name__)
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``map`` and its sub-subcommands."""
-    parser = subparsers.add_parser("map", help="build, evaluate, render and describe map files")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf map`` and its sub-subcommands."""
     commands = parser.add_subparsers(dest="map_command", required=True)
 
     build = commands.add_parser("build", help="build a map file from a data set (LLFF, NeRF-synthetic, nerfstudio, 7-Scenes)")

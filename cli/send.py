@@ -11,18 +11,19 @@ import re
 import sys
 import time
 
-from cli.services_link import add_bus_arguments, open_cli_bus, transport
+from cli.bus_client import add_bus_arguments, open_cli_bus
 from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import GlobalLocalizationCommand, InitialPoseCommand
+from services.transport import Inbox
 
 # Python's argparse (before 3.13) takes "-1.5e-05", as Python prints small negative numbers, for an
 # option name; a pose copied from a log must parse, so these parsers know every float spelling.
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$")
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("send", help="send a command to the filter")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf send``."""
     commands = parser.add_subparsers(dest="command_name", required=True)
     initial = commands.add_parser("initial-pose", help="re-initialise around a pose")
     initial.add_argument("--pose", type=float, nargs=16, required=True, metavar="T", help="T_world_cam, 16 numbers row-major, metres")
@@ -55,7 +56,7 @@ def _command(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     topic, message = _command(args)
-    inbox = transport().Inbox(capacity=4)
+    inbox = Inbox(capacity=4)
     bus = open_cli_bus(args.connect)
     subscription = bus.subscribe(keys.key(args.robot_id, keys.STATUS), lambda _k, payload: inbox.put(payload))
     try:

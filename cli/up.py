@@ -19,18 +19,19 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from cli.bus_client import DEFAULT_PORT
 from cli.monitor import GroundTruthMatcher, PoseError, pose_line
-from cli.services_link import DEFAULT_PORT, transport
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, PoseStamped
+from services.transport import Inbox, TransportConfig, open_bus
 
 STARTUP_TIMEOUT_S = 180.0
 STOP_TIMEOUT_S = 15.0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("up", help="start ingest, filter and worker(s) locally; Ctrl-C stops them")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``locnerf up``."""
     parser.add_argument("--duration", type=float, default=0.0, help="stop this many seconds after the first pose (0: until Ctrl-C)")
     parser.add_argument("--json", action="store_true", help="print only a JSON summary at the end")
     parser.add_argument("--workers", type=int, default=1, help="NeRF worker processes")
@@ -200,11 +201,10 @@ def _interrupt_on_signals() -> None:
 def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise ValueError(f"--workers {args.workers}: expected at least 1")
-    module = transport()
     endpoint = f"tcp/127.0.0.1:{args.port or free_port()}"
-    bus = module.open_bus(module.TransportConfig(listen=(endpoint,)))
+    bus = open_bus(TransportConfig(listen=(endpoint,)))
     environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
-    inbox = module.Inbox(capacity=4096)
+    inbox = Inbox(capacity=4096)
     topics = {"truth": keys.GROUND_TRUTH, "status": keys.STATUS, "pose": keys.POSE}
     handles = [bus.subscribe(keys.key(args.robot_id, t), lambda _k, p, kind=kind: inbox.put((kind, p))) for kind, t in topics.items()]
     args.logs.mkdir(parents=True, exist_ok=True)
