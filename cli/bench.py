@@ -21,6 +21,7 @@ import torch
 
 from cli import bench_filter, bench_world
 from locnerf.devices import resolve_device
+from locnerf.errors import LocnerfInputError
 from locnerf.field.map_file import load_map
 from locnerf.field.nerf_pytorch import NerfMLP, NerfPytorchMap
 from locnerf.render.rays import rays_from_poses_and_pixels
@@ -70,7 +71,7 @@ def _seconds_per_call(function: Callable[[], torch.Tensor], repeats: int, device
 
 def run_render(args: argparse.Namespace) -> int:
     if args.threads < 1:
-        raise ValueError(f"--threads {args.threads}: expected at least 1")
+        raise LocnerfInputError(f"--threads {args.threads}: expected at least 1")
     torch.set_num_threads(args.threads)
     device = resolve_device(args.device)
     torch.manual_seed(args.seed)

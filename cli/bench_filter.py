@@ -28,6 +28,7 @@ import torch
 
 from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
+from locnerf.errors import LocnerfInputError
 from locnerf.filter.estimate import estimate_from_particles
 from locnerf.filter.measurement import particle_log_likelihoods, sample_pixels
 from locnerf.filter.motion import propagate_poses
@@ -115,7 +116,7 @@ def build_targets(particles: int, pixels: int, map_spec: str, device: torch.devi
 def run(args: argparse.Namespace) -> int:
     for name, value in (("--particles", args.particles), ("--pixels", args.pixels), ("--repeats", args.repeats), ("--threads", args.threads)):
         if value < 1:
-            raise ValueError(f"{name} {value}: expected at least 1")
+            raise LocnerfInputError(f"{name} {value}: expected at least 1")
     torch.set_num_threads(args.threads)
     device = resolve_device(args.device)
     generator = torch.Generator().manual_seed(args.seed)
@@ -123,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     chosen = args.targets.split(",") if args.targets else list(targets)
     unknown = sorted(set(chosen) - set(targets))
     if unknown:
-        raise ValueError(f"--targets {unknown}: expected names among {sorted(targets)}")
+        raise LocnerfInputError(f"--targets {unknown}: expected names among {sorted(targets)}")
     settings = {"particles": args.particles, "pixels": args.pixels, "map": args.map, "device": str(device), "threads": args.threads}
     table = BenchTable(("target", "median_ms", "p90_ms", "calls_per_s"), settings, args.json)
     for name in chosen:

@@ -8,6 +8,7 @@ import torch
 
 from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
+from locnerf.errors import LocnerfInputError
 from locnerf.sim.benchmark import benchmark_world
 
 
@@ -24,7 +25,7 @@ def add_target(targets: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
-        raise ValueError(f"--threads {args.threads}: expected at least 1")
+        raise LocnerfInputError(f"--threads {args.threads}: expected at least 1")
     torch.set_num_threads(args.threads)
     device = resolve_device(args.device)
     table = BenchTable(("dtype", "rays", "median_ms"), {"device": str(device), "threads": args.threads, "repeats": args.repeats}, args.json)

@@ -22,6 +22,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from locnerf.errors import LocnerfInputError
+
 logger = logging.getLogger(__name__)
 
 ROLES = ("router", "ingest", "filter", "worker", "operator", "robot")
@@ -55,12 +57,12 @@ def make_certificates(out: Path, roles: tuple[str, ...] = ROLES, days: int = 365
         The files written.
 
     Raises:
-        ValueError: an empty or duplicated role, or ``days`` < 1.
+        LocnerfInputError: an empty or duplicated role, or ``days`` < 1.
     """
     if days < 1:
-        raise ValueError(f"certificate validity {days} days: expected >= 1")
+        raise LocnerfInputError(f"certificate validity {days} days: expected >= 1")
     if not roles or len(set(roles)) != len(roles) or not all(role.strip() for role in roles):
-        raise ValueError(f"roles {roles!r}: expected distinct, non-empty common names")
+        raise LocnerfInputError(f"roles {roles!r}: expected distinct, non-empty common names")
     out.mkdir(parents=True, exist_ok=True)
     now = datetime.datetime.now(datetime.timezone.utc)
     start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=days)

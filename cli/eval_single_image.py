@@ -10,9 +10,11 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from cli.flags import from_flags
 from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
+from locnerf.errors import LocnerfInputError
 from locnerf.eval.paper_logs import read_logged_trials
 from locnerf.eval.plots import plot_error_curves, plot_images_beside_renders, plot_mean_error_against_rays, plot_success_against_rays
 from locnerf.maps.source import open_map
@@ -59,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.trials < 0 or (args.trials == 0 and args.starts is None):
-        raise ValueError(f"--trials {args.trials}: expected >= 1 seeded trials, or --starts with logged ones")
+        raise LocnerfInputError(f"--trials {args.trials}: expected >= 1 seeded trials, or --starts with logged ones")
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
     pool = read_dataset(args.data, split=args.split, downscale=args.downscale)
@@ -73,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         views += seeded_views(pool, args.trials, generator, held_out_frames(args.data, args.split, args.downscale))
     config = load_config(args.config) if args.config else preset(args.preset)
     localizer = Localizer(config, generator, device=device)
-    trial_config = TrialConfig(protocol=args.protocol, updates=args.updates, up=radiance_map.normalization.up)
+    trial_config = from_flags(TrialConfig, {"protocol": args.protocol, "updates": args.updates, "up": radiance_map.normalization.up})
     results = []
     for view in tqdm(views, desc=f"{args.protocol} trials", disable=args.json):
         results += run_views([view], radiance_map, pool.intrinsics, localizer, trial_config)

@@ -10,9 +10,11 @@ from pathlib import Path
 import torch
 
 from cli.eval_tracking_live import run_live
+from cli.flags import from_flags
 from locnerf.config import load_config, preset
 from locnerf.data import read_nerf_synthetic
 from locnerf.devices import resolve_device
+from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import (
     ConvergenceConfig,
     StartConfig,
@@ -80,7 +82,7 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
     """The figure-eight in the world, or the sequence folder replayed at the nominal speed."""
     if args.sequence == WORLD:
         if not isinstance(radiance_map, ProceduralWorld):
-            raise ValueError(f"--sequence world needs --map world (got --map {args.map}): the synthetic images come from the procedural world")
+            raise LocnerfInputError(f"--sequence world needs --map world (got --map {args.map}): the synthetic images come from the procedural world")
         return WorldPath(radiance_map, FigureEightTrajectory(), CameraConfig())
     folder = Path(args.sequence)
     if not folder.is_dir():
@@ -92,7 +94,7 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
 def convergence_criterion(args: argparse.Namespace) -> ConvergenceConfig:
     """--converged-translation/-rotation/-hold, checked before any work starts."""
     if args.converged_translation <= 0 or args.converged_rotation <= 0 or args.converged_hold < 0:
-        raise ValueError(
+        raise LocnerfInputError(
             f"--converged-translation {args.converged_translation}, --converged-rotation {args.converged_rotation}, "
             f"--converged-hold {args.converged_hold}: expected positive thresholds and a hold of 0 s or more"
         )
@@ -101,23 +103,25 @@ def convergence_criterion(args: argparse.Namespace) -> ConvergenceConfig:
 
 def vio_config(args: argparse.Namespace) -> VioConfig:
     """The odometry model of --odom-rate, --drift, --yaw-drift, --noise, --rotation-noise."""
-    return VioConfig(
-        rate=args.odom_rate,
-        translation_drift=args.drift,
-        yaw_drift_rate=math.radians(args.yaw_drift),
-        translation_noise=args.noise,
-        rotation_noise=math.radians(args.rotation_noise),
-    )
+    values = {
+        "rate": args.odom_rate,
+        "translation_drift": args.drift,
+        "yaw_drift_rate": math.radians(args.yaw_drift),
+        "translation_noise": args.noise,
+        "rotation_noise": math.radians(args.rotation_noise),
+    }
+    flags = {"rate": "--odom-rate", "translation_drift": "--drift", "yaw_drift_rate": "--yaw-drift (in radians)", "translation_noise": "--noise", "rotation_noise": "--rotation-noise (in radians)"}
+    return from_flags(VioConfig, values, flags)
 
 
 def run(args: argparse.Namespace) -> int:
     image_rate = args.image_rate if args.image_rate is not None else (5.0 if args.live else 3.0)
     if args.odom_rate <= 0 or image_rate <= 0:
-        raise ValueError(f"--odom-rate {args.odom_rate}, --image-rate {image_rate}: expected positive rates")
+        raise LocnerfInputError(f"--odom-rate {args.odom_rate}, --image-rate {image_rate}: expected positive rates")
     criterion = convergence_criterion(args)
     if args.live:
         if args.background != "white" or args.updates_per_image != 1 or args.init != "global" or args.no_recovery or args.plots:
-            raise ValueError("--live: --background white, --updates-per-image 1, --init global, no --no-recovery and no --plots (the services do not do the others)")
+            raise LocnerfInputError("--live: --background white, --updates-per-image 1, --init global, no --no-recovery and no --plots (the services do not do the others)")
         path = camera_path(args, open_map(args.map, torch.device("cpu")))
         sensor_seconds = args.duration if args.duration is not None else path.duration
         report = run_live(args, criterion, image_rate, vio_config(args).model_dump(), sensor_seconds)
@@ -128,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     path = camera_path(args, radiance_map)
     scenario = build_scenario(
         path,
-        ScenarioConfig(duration=args.duration, image_rate=image_rate, vio=vio_config(args), kidnap_at=args.kidnap_at, seed=args.seed),
+        from_flags(ScenarioConfig, {"duration": args.duration, "image_rate": image_rate, "vio": vio_config(args), "kidnap_at": args.kidnap_at, "seed": args.seed}),
         radiance_map.normalization,
     )
     config = localizer_config(args)

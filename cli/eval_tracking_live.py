@@ -24,6 +24,7 @@ from typing import Any
 import torch
 
 from cli.up import free_port, service_commands, stop_processes, write_config_files
+from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_summary
 from locnerf.maps.source import WORLD, open_map
@@ -153,7 +154,7 @@ def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate:
     ``sensor_seconds`` is the scenario's length (for the prefetch size and the timeout).
     """
     if args.workers < 1:
-        raise ValueError(f"--workers {args.workers}: expected at least 1")
+        raise LocnerfInputError(f"--workers {args.workers}: expected at least 1")
     normalization = open_map(args.map, torch.device("cpu")).normalization
     events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
     namespace = write_configs(args, args.logs, image_rate, vio, events)

@@ -32,6 +32,7 @@ import psutil
 from hypothesis import HealthCheck, Phase, given, seed, settings
 
 from cli.up import free_port, stop_processes, write_config_files
+from locnerf.errors import LocnerfInputError
 from locnerf.eval.fuzz_payloads import ACCEPTED, TARGETS, FuzzTarget, Hostile
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
@@ -328,7 +329,7 @@ def format_report(report: dict[str, object]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     if args.payloads < 1 or args.rate <= 0:
-        raise ValueError(f"--payloads {args.payloads}, --rate {args.rate}: expected >= 1 and > 0")
+        raise LocnerfInputError(f"--payloads {args.payloads}, --rate {args.rate}: expected >= 1 and > 0")
     report = run_fuzz(args)
     print(json.dumps(report) if args.json else format_report(report), flush=True)
     return 0 if all(report["checks"].values()) else 1

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from cli.flags import from_flags
 from cli.up import free_port, service_commands, stop_processes, write_config_files
 from locnerf.eval.loadtest_process import ProcessSample, process_usage, read_process_sample
 from locnerf.eval.loadtest_recorder import LoadRecorder
@@ -283,11 +284,11 @@ def run(args: argparse.Namespace) -> int:
     combinations = list(itertools.product(args.workers, args.particles, args.pixels))
     reports = []
     for workers, particles, pixels in combinations:
-        case = LoadCaseConfig(
+        case = from_flags(LoadCaseConfig, dict(
             particles=particles, pixels=pixels, workers=workers, camera_rate=args.camera_rate, odometry_rate=args.odometry_rate,
             duration=args.duration, warmup=args.warmup, map=args.map, device=args.device, seed=args.seed, prerender=not args.render_live,
             overload=args.overload, memory_period=args.memory_period,
-        )
+        ), {"prerender": "--render-live"})
         report = run_case(case, args.out / f"w{workers}_p{particles}_m{pixels}")
         reports.append(report)
         if not args.json:

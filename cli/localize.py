@@ -8,8 +8,10 @@ import logging
 
 import torch
 
+from cli.flags import from_flags
 from locnerf.config import load_config, preset
 from locnerf.devices import resolve_device
+from locnerf.errors import LocnerfInputError
 from locnerf.eval.single_image import TrialConfig, run_trials, summarize
 from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.maps.source import open_map, target_views
@@ -39,12 +41,12 @@ DEFAULT_UPDATES = {"inerf": 100, "global": 150}
 
 def run(args: argparse.Namespace) -> int:
     if args.trials < 1:
-        raise ValueError(f"--trials {args.trials}: expected at least 1")
+        raise LocnerfInputError(f"--trials {args.trials}: expected at least 1")
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
     config = load_config(args.config) if args.config else preset(args.preset or DEFAULT_PRESET[args.protocol])
     if args.particles is not None:
-        config = LocalizerConfig.model_validate(config.model_dump() | {"particles": args.particles})
+        config = from_flags(LocalizerConfig, config.model_dump() | {"particles": args.particles})
     trial_config = TrialConfig(
         protocol=args.protocol,
         updates=args.updates or DEFAULT_UPDATES[args.protocol],

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
 
+from locnerf.errors import LocnerfInputError
+
 logger = logging.getLogger("locnerf")
 
 
@@ -71,7 +73,7 @@ class LazyCommands(argparse._SubParsersAction):
 def build_parser() -> argparse.ArgumentParser:
     """Parser with every subcommand listed (each one's module is imported when it is parsed)."""
     parser = argparse.ArgumentParser(prog="locnerf", description=__doc__.split("\n\n")[0])
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug)")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug and the traceback of an input error)")
     parser.add_subparsers(dest="command", required=True, action=LazyCommands, commands=COMMANDS)
     return parser
 
@@ -88,15 +90,20 @@ def ask_torch_for_huge_pages() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the console script; returns the process exit code."""
+    """Entry point of the console script; returns the process exit code.
+
+    Bad input (a :class:`~locnerf.errors.LocnerfInputError` or a missing file) is reported as one
+    line, with its traceback at ``-vv``, and exit code 2; any other exception is a bug and
+    propagates with its traceback.
+    """
     ask_torch_for_huge_pages()
     args = build_parser().parse_args(argv)
     level = {0: logging.WARNING, 1: logging.INFO}.get(args.verbose, logging.DEBUG)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as error:
-        logger.error("%s", error)
+    except (LocnerfInputError, FileNotFoundError) as error:
+        logger.error("%s", error, exc_info=args.verbose >= 2)
         return 2
 
 

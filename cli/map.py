@@ -11,8 +11,10 @@ import cv2
 import numpy as np
 import torch
 
+from cli.flags import from_flags
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
+from locnerf.errors import LocnerfInputError
 from locnerf.eval.plots import plot_images_beside_renders
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.grid_map import GridMap
@@ -96,14 +98,13 @@ def run_build(args: argparse.Namespace) -> int:
     train = read_dataset(args.data, split=args.split, downscale=args.downscale, stride=args.stride)
     if args.backend == "nerf_pytorch":
         if not args.checkpoint:
-            raise ValueError("--backend nerf_pytorch needs --checkpoint FILE.tar")
+            raise LocnerfInputError("--backend nerf_pytorch needs --checkpoint FILE.tar")
         info = MapInfo(train.normalization, train.intrinsics, train.T_world_cam.double(), {"source": train.source, "checkpoint": args.checkpoint})
         radiance_map = load_nerf_pytorch_checkpoint(args.checkpoint, info, train.white_background, device)
     else:
-        config = BuildConfig(
-            steps=args.steps, minutes=args.minutes, seed=args.seed, field=GridFieldConfig(voxels=args.voxels),
-            use_depth=not args.no_depth, depth_weight=args.depth_weight,
-        )
+        field = from_flags(GridFieldConfig, {"voxels": args.voxels})
+        values = {"steps": args.steps, "minutes": args.minutes, "seed": args.seed, "field": field, "use_depth": not args.no_depth, "depth_weight": args.depth_weight}
+        config = from_flags(BuildConfig, values, {"use_depth": "--no-depth"})
         radiance_map = build_map(train, config, device=device, progress=True)
         radiance_map.metadata["config"] = config.model_dump(mode="json")
     held_out = _held_out(args.data, args.downscale)
@@ -117,7 +118,7 @@ def run_build(args: argparse.Namespace) -> int:
 def run_eval(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     if (args.data is None) == (args.data_option is None):
-        raise ValueError("map eval: name the data set once, as DATA or --data DATA")
+        raise LocnerfInputError("map eval: name the data set once, as DATA or --data DATA")
     radiance_map = load_map(args.map, device)
     scores = evaluate_map(radiance_map.render_rays, _held_out(args.data or args.data_option, args.downscale, args.split, args.stride), device)
     if args.json:
@@ -133,7 +134,7 @@ def _read_pose(path: str) -> torch.Tensor:
         raise FileNotFoundError(f"pose file {file}: no such file")
     pose = np.load(file) if file.suffix == ".npy" else np.loadtxt(file)
     if pose.shape != (4, 4) or not np.isfinite(pose).all():
-        raise ValueError(f"pose file {file}: expected a finite 4x4 matrix, got shape {pose.shape}")
+        raise LocnerfInputError(f"pose file {file}: expected a finite 4x4 matrix, got shape {pose.shape}")
     return torch.from_numpy(pose)
 
 
@@ -145,19 +146,19 @@ def run_render(args: argparse.Namespace) -> int:
     else:
         poses = radiance_map.reference_poses()
         if not 0 <= args.view < len(poses):
-            raise ValueError(f"--view {args.view}: expected 0..{len(poses) - 1}")
+            raise LocnerfInputError(f"--view {args.view}: expected 0..{len(poses) - 1}")
         pose = poses[args.view]
     image = render_image(radiance_map.render_rays, pose.to(device, torch.float32), radiance_map.default_intrinsics)
     pixels = (image.cpu().numpy() * 255.0 + 0.5).astype(np.uint8)[:, :, ::-1]
     if not cv2.imwrite(str(args.out), pixels):
-        raise ValueError(f"--out {args.out}: cannot write a PNG there")
+        raise LocnerfInputError(f"--out {args.out}: cannot write a PNG there")
     print(args.out)
     return 0
 
 
 def run_compare(args: argparse.Namespace) -> int:
     if args.views < 1:
-        raise ValueError(f"--views {args.views}: expected >= 1")
+        raise LocnerfInputError(f"--views {args.views}: expected >= 1")
     device = resolve_device(args.device)
     radiance_map = load_map(args.map, device)
     views = _held_out(args.data, args.downscale, args.split)
@@ -173,7 +174,7 @@ def run_compare(args: argparse.Namespace) -> int:
 def run_prune(args: argparse.Namespace) -> int:
     radiance_map = load_map(args.map, "cpu")
     if not isinstance(radiance_map, GridMap):
-        raise ValueError(f"map {args.map}: prune applies to grid maps, this one is {radiance_map.kind}")
+        raise LocnerfInputError(f"map {args.map}: prune applies to grid maps, this one is {radiance_map.kind}")
     fraction = radiance_map.field.update_occupancy(args.occupancy_alpha)
     radiance_map.metadata["occupancy_alpha"] = args.occupancy_alpha
     save_map(radiance_map, args.out or args.map)

@@ -12,6 +12,8 @@ import sys
 import time
 
 from cli.bus_client import add_bus_arguments, open_cli_bus
+from cli.flags import from_flags
+from locnerf.errors import LocnerfInputError
 from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import GlobalLocalizationCommand, InitialPoseCommand
@@ -44,14 +46,15 @@ def _command(args: argparse.Namespace):
         return keys.GLOBAL_LOCALIZATION, GlobalLocalizationCommand(stamp=stamp)
     for name, value in (("--sigma-position", args.sigma_position), ("--sigma-rotation-deg", args.sigma_rotation_deg)):
         if not value > 0:
-            raise ValueError(f"{name} {value}: expected a positive standard deviation")
+            raise LocnerfInputError(f"{name} {value}: expected a positive standard deviation")
     pose = [args.pose[i : i + 4] for i in range(0, 16, 4)]
     if args.covariance is not None:
         covariance = [args.covariance[i : i + 6] for i in range(0, 36, 6)]
     else:
         variances = [math.radians(args.sigma_rotation_deg) ** 2] * 3 + [args.sigma_position**2] * 3
         covariance = [[variances[i] if i == j else 0.0 for j in range(6)] for i in range(6)]
-    return keys.INITIAL_POSE, InitialPoseCommand(stamp=stamp, T_world_cam=pose, covariance=covariance)
+    values = {"stamp": stamp, "T_world_cam": pose, "covariance": covariance}
+    return keys.INITIAL_POSE, from_flags(InitialPoseCommand, values, {"T_world_cam": "--pose", "covariance": "--covariance"})
 
 
 def run(args: argparse.Namespace) -> int:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from cli.bus_client import DEFAULT_PORT
 from cli.monitor import GroundTruthMatcher, PoseError, pose_line
+from locnerf.errors import LocnerfInputError
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, PoseStamped
@@ -200,7 +201,7 @@ def _interrupt_on_signals() -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
-        raise ValueError(f"--workers {args.workers}: expected at least 1")
+        raise LocnerfInputError(f"--workers {args.workers}: expected at least 1")
     endpoint = f"tcp/127.0.0.1:{args.port or free_port()}"
     bus = open_bus(TransportConfig(listen=(endpoint,)))
     environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}

@@ -34,6 +34,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from locnerf.errors import ConfigError
 from locnerf.filter.localizer import LocalizerConfig
 
 
@@ -121,7 +122,7 @@ PRESETS: dict[str, dict[str, Any]] = {
 def preset(name: str, **overrides: Any) -> LocalizerConfig:
     """The named preset (``llff``, ``llff_global``, ``jackal``, ``tracking``, ``precise``), with optional field overrides."""
     if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r}: expected one of {sorted(PRESETS)}")
+        raise ConfigError(f"unknown preset {name!r}: expected one of {sorted(PRESETS)}")
     return LocalizerConfig.model_validate(_deep_merge(PRESETS[name], overrides))
 
 
@@ -130,12 +131,12 @@ def config_from_mapping(data: dict[str, Any], source: str = "<mapping>") -> Loca
     data = dict(data)
     preset_name = data.pop("preset", None)
     if preset_name is not None and preset_name not in PRESETS:
-        raise ValueError(f"{source}: unknown preset {preset_name!r}: expected one of {sorted(PRESETS)}")
+        raise ConfigError(f"{source}: unknown preset {preset_name!r}: expected one of {sorted(PRESETS)}")
     base = PRESETS[preset_name] if preset_name is not None else {}
     try:
         return LocalizerConfig.model_validate(_deep_merge(base, data))
     except ValidationError as error:
-        raise ValueError(f"{source}: invalid localizer configuration:\n{error}") from error
+        raise ConfigError(f"{source}: invalid localizer configuration:\n{error}") from error
 
 
 def load_config(path: str | Path) -> LocalizerConfig:
@@ -146,5 +147,5 @@ def load_config(path: str | Path) -> LocalizerConfig:
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: configuration file not found") from None
     except tomllib.TOMLDecodeError as error:
-        raise ValueError(f"{path}: not valid TOML ({error})") from error
+        raise ConfigError(f"{path}: not valid TOML ({error})") from error
     return config_from_mapping(data, source=str(path))

@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
+from locnerf.errors import ConfigError
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import ServiceStatus
 
@@ -147,7 +148,7 @@ def load_service_config(model: type[ConfigModel], path: Path | None, overrides: 
     """A service config from an optional TOML file, then non-None command-line ``overrides``.
 
     Raises:
-        FileNotFoundError: a missing file. ValueError: invalid TOML or fields (message names the file).
+        FileNotFoundError: a missing file. ConfigError: invalid TOML or fields (message names the file).
     """
     data: dict[str, Any] = {}
     source = "command line"
@@ -158,12 +159,12 @@ def load_service_config(model: type[ConfigModel], path: Path | None, overrides: 
         except FileNotFoundError:
             raise FileNotFoundError(f"{path}: service configuration file not found") from None
         except tomllib.TOMLDecodeError as error:
-            raise ValueError(f"{path}: not valid TOML ({error})") from error
+            raise ConfigError(f"{path}: not valid TOML ({error})") from error
     data |= {name: value for name, value in overrides.items() if value is not None}
     try:
         return model.model_validate(data)
     except ValidationError as error:
-        raise ValueError(f"{source}: invalid {model.__name__}:\n{error}") from error
+        raise ConfigError(f"{source}: invalid {model.__name__}:\n{error}") from error
 
 
 def limit_torch_threads(threads: int) -> None:

@@ -9,13 +9,14 @@ from locnerf.data.posed_images import PosedImages
 from locnerf.data.seven_scenes import DEFAULT_DOWNSCALE as SEVEN_SCENES_DOWNSCALE
 from locnerf.data.seven_scenes import read_seven_scenes
 from locnerf.data.transforms_json import read_nerf_synthetic, read_nerfstudio
+from locnerf.errors import DatasetError
 
 
 def dataset_format(path: str | Path) -> str:
     """``llff`` | ``nerf_synthetic`` | ``nerfstudio`` | ``seven_scenes`` for a data-set folder (or a transforms.json).
 
     Raises:
-        FileNotFoundError / ValueError: naming the path when nothing recognisable is there.
+        FileNotFoundError / DatasetError: naming the path when nothing recognisable is there.
     """
     path = Path(path)
     if path.is_file() and path.name == "transforms.json":
@@ -30,7 +31,7 @@ def dataset_format(path: str | Path) -> str:
         return "nerfstudio"
     if (path / "TrainSplit.txt").is_file() or (path / "TestSplit.txt").is_file():
         return "seven_scenes"
-    raise ValueError(f"data set {path}: expected poses_bounds.npy (LLFF), transforms_<split>.json (NeRF-synthetic), "
+    raise DatasetError(f"data set {path}: expected poses_bounds.npy (LLFF), transforms_<split>.json (NeRF-synthetic), "
                      "transforms.json (nerfstudio) or TrainSplit.txt/TestSplit.txt (7-Scenes)")
 
 
@@ -48,7 +49,7 @@ def read_dataset(
         stride: keep every ``stride``-th frame of the split.
     """
     if stride < 1:
-        raise ValueError(f"stride={stride}: expected an integer >= 1")
+        raise DatasetError(f"stride={stride}: expected an integer >= 1")
     kind = dataset_format(path)
     if kind == "seven_scenes":
         return read_seven_scenes(path, split=split, downscale=downscale or SEVEN_SCENES_DOWNSCALE, stride=stride)

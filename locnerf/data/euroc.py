@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from locnerf.data.image_files import read_rgb
+from locnerf.errors import DatasetError
 from locnerf.geometry.quaternion import quaternion_to_matrix
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -69,7 +70,7 @@ def _yaml_numbers(storage: cv2.FileStorage, name: str, path: Path, count: int) -
     if node.isMap():
         node = node.getNode("data")
     if node.empty() or node.size() != count:
-        raise ValueError(f"{path}: expected {count} numbers in '{name}'")
+        raise DatasetError(f"{path}: expected {count} numbers in '{name}'")
     return np.array([node.at(i).real() for i in range(count)], dtype=np.float64)
 
 
@@ -77,17 +78,17 @@ def read_camera(sensor_yaml: Path) -> EurocCamera:
     """Calibration from a EuRoC ``sensor.yaml``.
 
     Raises:
-        FileNotFoundError / ValueError: naming the file and the missing or unsupported entry.
+        FileNotFoundError / DatasetError: naming the file and the missing or unsupported entry.
     """
     if not sensor_yaml.is_file():
         raise FileNotFoundError(f"{sensor_yaml}: no such file (the camera calibration)")
     storage = cv2.FileStorage(str(sensor_yaml), cv2.FILE_STORAGE_READ)
     model = storage.getNode("camera_model").string()
     if model != "pinhole":
-        raise ValueError(f"{sensor_yaml}: camera_model '{model}', expected 'pinhole'")
+        raise DatasetError(f"{sensor_yaml}: camera_model '{model}', expected 'pinhole'")
     distortion_model = storage.getNode("distortion_model").string()
     if distortion_model != "radial-tangential":
-        raise ValueError(f"{sensor_yaml}: distortion_model '{distortion_model}', expected 'radial-tangential'")
+        raise DatasetError(f"{sensor_yaml}: distortion_model '{distortion_model}', expected 'radial-tangential'")
     fx, fy, cx, cy = _yaml_numbers(storage, "intrinsics", sensor_yaml, 4)
     width, height = _yaml_numbers(storage, "resolution", sensor_yaml, 2)
     T_body_cam = torch.from_numpy(_yaml_numbers(storage, "T_BS", sensor_yaml, 16).reshape(4, 4))
@@ -102,13 +103,13 @@ def _numeric_rows(path: Path, delimiter: str | None, columns: int) -> np.ndarray
     try:
         rows = np.loadtxt(path, delimiter=delimiter, comments="#", ndmin=2, dtype=np.float64)
     except ValueError as error:
-        raise ValueError(f"{path}: not a numeric table ({error})") from error
+        raise DatasetError(f"{path}: not a numeric table ({error})") from error
     if rows.shape[0] < 2 or rows.shape[1] < columns:
-        raise ValueError(f"{path}: expected at least 2 rows of {columns} columns, got shape {rows.shape}")
+        raise DatasetError(f"{path}: expected at least 2 rows of {columns} columns, got shape {rows.shape}")
     if not np.isfinite(rows[:, :columns]).all():
-        raise ValueError(f"{path}: NaN or infinite values")
+        raise DatasetError(f"{path}: NaN or infinite values")
     if (np.diff(rows[:, 0]) <= 0).any():
-        raise ValueError(f"{path}: stamps must increase")
+        raise DatasetError(f"{path}: stamps must increase")
     return rows
 
 
@@ -142,7 +143,7 @@ def read_euroc(root: str | Path, camera: str = "cam0", groundtruth: str | Path |
     """Open a EuRoC folder (the one holding ``mav0``).
 
     Raises:
-        FileNotFoundError / ValueError: naming the file and the problem (missing list, calibration,
+        FileNotFoundError / DatasetError: naming the file and the problem (missing list, calibration,
             images or ground truth; stamps not increasing; ground truth not covering the images).
     """
     root = Path(root)
@@ -152,10 +153,10 @@ def read_euroc(root: str | Path, camera: str = "cam0", groundtruth: str | Path |
         raise FileNotFoundError(f"{listing}: no such file (expected a EuRoC folder holding mav0/{camera}/data.csv)")
     entries = [line.split(",") for line in listing.read_text().splitlines() if line.strip() and not line.startswith("#")]
     if len(entries) < 2 or any(len(entry) != 2 for entry in entries):
-        raise ValueError(f"{listing}: expected at least 2 rows of 'timestamp [ns],filename'")
+        raise DatasetError(f"{listing}: expected at least 2 rows of 'timestamp [ns],filename'")
     stamps = np.array([int(entry[0]) for entry in entries], dtype=np.int64)
     if (np.diff(stamps) <= 0).any():
-        raise ValueError(f"{listing}: image stamps must increase")
+        raise DatasetError(f"{listing}: image stamps must increase")
     paths = [folder / "data" / entry[1].strip() for entry in entries]
     missing = [p for p in paths if not p.is_file()]
     if missing:
@@ -163,6 +164,6 @@ def read_euroc(root: str | Path, camera: str = "cam0", groundtruth: str | Path |
     truth_stamps, T_world_body = read_groundtruth(Path(groundtruth) if groundtruth else _default_groundtruth(root))
     image_stamps = stamps / NANOSECONDS
     if truth_stamps[0] > image_stamps[-1] or truth_stamps[-1] < image_stamps[0]:
-        raise ValueError(f"{root}: the ground truth ({truth_stamps[0]:.3f}–{truth_stamps[-1]:.3f} s) does not overlap the images "
+        raise DatasetError(f"{root}: the ground truth ({truth_stamps[0]:.3f}–{truth_stamps[-1]:.3f} s) does not overlap the images "
                          f"({image_stamps[0]:.3f}–{image_stamps[-1]:.3f} s)")
     return EurocSequence(root, read_camera(folder / "sensor.yaml"), image_stamps, paths, truth_stamps, T_world_body)

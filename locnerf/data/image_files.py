@@ -7,6 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from locnerf.errors import DatasetError
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".JPG", ".PNG", ".JPEG")
 
 
@@ -33,11 +35,11 @@ def read_rgb(path: Path, downscale: float = 1.0, background: tuple[float, float,
         downscale: integer-like factor >= 1; area-averaged resize (as nerf-pytorch's ``half_res``).
         background: RGB to composite RGBA images on; ``None`` drops the alpha channel.
     Raises:
-        ValueError: when the file cannot be decoded.
+        DatasetError: when the file cannot be decoded.
     """
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
-        raise ValueError(f"image {path}: cannot be decoded as an image")
+        raise DatasetError(f"image {path}: cannot be decoded as an image")
     scale = 65535.0 if raw.dtype == np.uint16 else 255.0
     image = raw.astype(np.float32) / scale
     if image.ndim == 2:
@@ -59,12 +61,12 @@ def stack_same_size(images: list[np.ndarray], paths: list[Path]) -> np.ndarray:
     """(K, H, W, 3) from images that must all share one size.
 
     Raises:
-        ValueError: naming the first image whose size differs from the first one's.
+        DatasetError: naming the first image whose size differs from the first one's.
     """
     if not images:
-        raise ValueError("no images to stack")
+        raise DatasetError("no images to stack")
     first = images[0].shape
     for image, path in zip(images, paths):
         if image.shape != first:
-            raise ValueError(f"image {path} has size {image.shape[1]}x{image.shape[0]}: expected {first[1]}x{first[0]} like {paths[0]}")
+            raise DatasetError(f"image {path} has size {image.shape[1]}x{image.shape[0]}: expected {first[1]}x{first[0]} like {paths[0]}")
     return np.stack(images)

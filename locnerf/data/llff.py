@@ -22,6 +22,7 @@ import torch
 
 from locnerf.data.image_files import read_rgb, stack_same_size
 from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -99,19 +100,19 @@ def read_llff(folder: str | Path, downscale: int = 8, split: str = "all", holdou
     if not poses_file.is_file():
         raise FileNotFoundError(f"LLFF folder {folder}: {poses_file.name} not found")
     if downscale < 1:
-        raise ValueError(f"downscale={downscale}: expected an integer >= 1")
+        raise DatasetError(f"downscale={downscale}: expected an integer >= 1")
     poses_bounds = np.load(poses_file)
     if poses_bounds.ndim != 2 or poses_bounds.shape[1] != 17:
-        raise ValueError(f"{poses_file}: shape {poses_bounds.shape}, expected (K, 17)")
+        raise DatasetError(f"{poses_file}: shape {poses_bounds.shape}, expected (K, 17)")
     if not np.isfinite(poses_bounds).all():
         bad = int(np.flatnonzero(~np.isfinite(poses_bounds).all(axis=1))[0])
-        raise ValueError(f"{poses_file}: row {bad} holds a NaN or infinite value")
+        raise DatasetError(f"{poses_file}: row {bad} holds a NaN or infinite value")
     image_folder, resize = _image_folder(folder, downscale)
     paths = sorted(p for p in image_folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not paths:
         raise FileNotFoundError(f"LLFF folder {image_folder}: no images")
     if len(paths) != len(poses_bounds):
-        raise ValueError(f"{poses_file} has {len(poses_bounds)} poses but {image_folder} has {len(paths)} images")
+        raise DatasetError(f"{poses_file} has {len(poses_bounds)} poses but {image_folder} has {len(paths)} images")
     T_world_cam, bounds, T_map_scaled, scale = normalize_llff_poses(poses_bounds)
     positions = _split_positions(len(paths), split, holdout_every)
     images = stack_same_size([read_rgb(paths[i], resize) for i in positions], [paths[i] for i in positions])
@@ -119,7 +120,7 @@ def read_llff(folder: str | Path, downscale: int = 8, split: str = "all", holdou
     full_height, full_width, full_focal = poses_bounds[0, 4], poses_bounds[0, 9], poses_bounds[0, 14]
     focal = full_focal * width / full_width
     if abs(height / width - full_height / full_width) > 0.02:
-        raise ValueError(f"{image_folder}: images {width}x{height} do not match the aspect of the poses' {full_width:.0f}x{full_height:.0f}")
+        raise DatasetError(f"{image_folder}: images {width}x{height} do not match the aspect of the poses' {full_width:.0f}x{full_height:.0f}")
     intrinsics = PinholeIntrinsics(fx=focal, fy=focal, cx=width / 2.0, cy=height / 2.0, width=width, height=height)
     normalization = MapNormalization(
         T_map_dataset=T_map_scaled.tolist(), scale=scale, ndc=True, near=float(bounds.min() * 0.9), far=float(bounds.max())
@@ -147,4 +148,4 @@ def _split_positions(count: int, split: str, holdout_every: int) -> list[int]:
         return held_out
     if split == "train":
         return [i for i in range(count) if i not in held_out]
-    raise ValueError(f"split {split!r}: expected all, train or test for an LLFF capture")
+    raise DatasetError(f"split {split!r}: expected all, train or test for an LLFF capture")

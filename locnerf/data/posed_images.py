@@ -6,6 +6,7 @@ from dataclasses import dataclass, field, replace
 
 import torch
 
+from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -52,17 +53,17 @@ class PosedImages:
         count = self.images.shape[0]
         expected_image = (count, self.intrinsics.height, self.intrinsics.width, 3)
         if tuple(self.images.shape) != expected_image:
-            raise ValueError(f"images of shape {tuple(self.images.shape)}: expected {expected_image} for {self.source}")
+            raise DatasetError(f"images of shape {tuple(self.images.shape)}: expected {expected_image} for {self.source}")
         if tuple(self.T_world_cam.shape) != (count, 4, 4):
-            raise ValueError(f"T_world_cam of shape {tuple(self.T_world_cam.shape)}: expected ({count}, 4, 4) for {self.source}")
+            raise DatasetError(f"T_world_cam of shape {tuple(self.T_world_cam.shape)}: expected ({count}, 4, 4) for {self.source}")
         if len(self.names) != count:
-            raise ValueError(f"{len(self.names)} names for {count} images in {self.source}")
+            raise DatasetError(f"{len(self.names)} names for {count} images in {self.source}")
         if (self.depths is None) != (self.depth_intrinsics is None):
-            raise ValueError(f"depths and depth_intrinsics must be given together for {self.source}")
+            raise DatasetError(f"depths and depth_intrinsics must be given together for {self.source}")
         if self.depths is not None and self.depth_intrinsics is not None:
             expected_depth = (count, self.depth_intrinsics.height, self.depth_intrinsics.width)
             if tuple(self.depths.shape) != expected_depth:
-                raise ValueError(f"depths of shape {tuple(self.depths.shape)}: expected {expected_depth} for {self.source}")
+                raise DatasetError(f"depths of shape {tuple(self.depths.shape)}: expected {expected_depth} for {self.source}")
         if not self.indices:
             object.__setattr__(self, "indices", list(range(count)))
 

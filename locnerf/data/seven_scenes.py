@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from locnerf.data.image_files import read_rgb, stack_same_size
 from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry.frames import opencv_to_opengl
 from locnerf.render.camera import PinholeIntrinsics
@@ -60,7 +61,7 @@ DEFAULT_UP = (0.0, -1.0, 0.0)
 def _sequence_folders(folder: Path, split: str) -> list[Path]:
     """The ``seq-XX`` folders a split names, in the order of its split files."""
     if split not in SPLIT_FILES:
-        raise ValueError(f"split {split!r}: expected one of {sorted(SPLIT_FILES)} for a 7-Scenes folder ({folder})")
+        raise DatasetError(f"split {split!r}: expected one of {sorted(SPLIT_FILES)} for a 7-Scenes folder ({folder})")
     folders = []
     for name in SPLIT_FILES[split]:
         path = folder / name
@@ -68,11 +69,11 @@ def _sequence_folders(folder: Path, split: str) -> list[Path]:
             raise FileNotFoundError(f"{path}: no such file (a 7-Scenes split file naming 'sequenceN' lines)")
         lines = [line.strip() for line in path.read_text().splitlines() if line.strip()]
         if not lines:
-            raise ValueError(f"{path}: empty split, expected at least one 'sequenceN' line")
+            raise DatasetError(f"{path}: empty split, expected at least one 'sequenceN' line")
         for line in lines:
             match = re.fullmatch(r"sequence(\d+)", line)
             if match is None:
-                raise ValueError(f"{path}: line {line!r}, expected 'sequenceN'")
+                raise DatasetError(f"{path}: line {line!r}, expected 'sequenceN'")
             sequence = folder / f"seq-{int(match.group(1)):02d}"
             if not sequence.is_dir():
                 raise FileNotFoundError(f"{path} names {line}: folder {sequence} not found")
@@ -100,20 +101,20 @@ def read_pose(path: Path) -> np.ndarray:
     """A rigid 4×4 camera-to-world pose (float64) from a 7-Scenes ``.pose.txt``.
 
     Raises:
-        FileNotFoundError / ValueError: naming the file and what was expected.
+        FileNotFoundError / DatasetError: naming the file and what was expected.
     """
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file (the frame's 4x4 camera-to-world pose)")
     try:
         pose = np.loadtxt(path, dtype=np.float64, ndmin=2)
     except ValueError as error:
-        raise ValueError(f"{path}: not a 4x4 table of numbers ({error})") from error
+        raise DatasetError(f"{path}: not a 4x4 table of numbers ({error})") from error
     if pose.shape != (4, 4) or not np.isfinite(pose).all():
-        raise ValueError(f"{path}: expected a finite 4x4 matrix, got shape {pose.shape}")
+        raise DatasetError(f"{path}: expected a finite 4x4 matrix, got shape {pose.shape}")
     rotation = pose[:3, :3]
     error = np.abs(rotation.T @ rotation - np.eye(3)).max()
     if error > RIGID_TOLERANCE or np.linalg.det(rotation) <= 0 or np.abs(pose[3] - (0.0, 0.0, 0.0, 1.0)).max() > RIGID_TOLERANCE:
-        raise ValueError(f"{path}: not a rigid transform (|RᵀR - I| = {error:.2e}, det {np.linalg.det(rotation):.3f}, "
+        raise DatasetError(f"{path}: not a rigid transform (|RᵀR - I| = {error:.2e}, det {np.linalg.det(rotation):.3f}, "
                          f"last row {pose[3].tolist()}); expected a rotation, a translation and the row 0 0 0 1")
     return pose
 
@@ -125,7 +126,7 @@ def read_depth(path: Path, stride: int) -> np.ndarray:
     if raw is None:
         raise FileNotFoundError(f"{path}: no such file or not an image (the frame's uint16 depth in mm)")
     if raw.dtype != np.uint16 or raw.ndim != 2:
-        raise ValueError(f"{path}: {raw.dtype} image of shape {raw.shape}, expected single-channel uint16 millimetres")
+        raise DatasetError(f"{path}: {raw.dtype} image of shape {raw.shape}, expected single-channel uint16 millimetres")
     depth = raw[::stride, ::stride]
     metres = depth.astype(np.float32) / 1000.0
     metres[np.isin(depth, INVALID_DEPTH_MM)] = 0.0
@@ -136,7 +137,7 @@ def _depth_ratio(colour: tuple[int, int], depth: tuple[int, int], path: Path) ->
     """Integer k with depth size = colour size / k; sizes as (width, height)."""
     ratio = colour[0] // depth[0] if depth[0] else 0
     if ratio < 1 or depth[0] * ratio != colour[0] or depth[1] * ratio != colour[1]:
-        raise ValueError(f"{path}: depth {depth[0]}x{depth[1]}, expected the colour size {colour[0]}x{colour[1]} "
+        raise DatasetError(f"{path}: depth {depth[0]}x{depth[1]}, expected the colour size {colour[0]}x{colour[1]} "
                          "divided by an integer (e.g. 320x240 for 640x480)")
     return ratio
 
@@ -148,7 +149,7 @@ def _depth_camera(folder: Path, colour: PinholeIntrinsics) -> PinholeIntrinsics:
         return PinholeIntrinsics(fx=DEPTH_FOCAL, fy=DEPTH_FOCAL, cx=colour.width / 2.0, cy=colour.height / 2.0, width=colour.width, height=colour.height)
     matrix = np.loadtxt(path, dtype=np.float64, ndmin=2)
     if matrix.shape != (3, 3) or not np.isfinite(matrix).all():
-        raise ValueError(f"{path}: expected a finite 3x3 camera matrix, got shape {matrix.shape}")
+        raise DatasetError(f"{path}: expected a finite 3x3 camera matrix, got shape {matrix.shape}")
     return PinholeIntrinsics(fx=matrix[0, 0], fy=matrix[1, 1], cx=matrix[0, 2], cy=matrix[1, 2], width=colour.width, height=colour.height)
 
 
@@ -159,7 +160,7 @@ def _up_axis(folder: Path) -> tuple[float, float, float]:
         return DEFAULT_UP
     gravity = np.loadtxt(path, dtype=np.float64).reshape(-1)
     if gravity.shape != (3,) or not np.isfinite(gravity).all() or np.linalg.norm(gravity) < 1e-6:
-        raise ValueError(f"{path}: expected 3 finite numbers (the gravity direction), got {gravity.tolist()}")
+        raise DatasetError(f"{path}: expected 3 finite numbers (the gravity direction), got {gravity.tolist()}")
     up = -gravity / np.linalg.norm(gravity)
     return (float(up[0]), float(up[1]), float(up[2]))
 
@@ -220,12 +221,12 @@ def read_seven_scenes(
         PosedImages in the world frame (metres, OpenGL camera axes), with ``depths`` (K, Hd, Wd)
         in metres and the depth camera when the frames have depth images.
     Raises:
-        FileNotFoundError / ValueError: naming the file and what was expected (unknown or empty
+        FileNotFoundError / DatasetError: naming the file and what was expected (unknown or empty
             split, missing pose, non-rigid pose, image or depth sizes that do not fit).
     """
     folder = Path(folder)
     if downscale < 1 or stride < 1:
-        raise ValueError(f"downscale={downscale}, stride={stride}: expected integers >= 1")
+        raise DatasetError(f"downscale={downscale}, stride={stride}: expected integers >= 1")
     every = [stem for sequence in _sequence_folders(folder, "all") for stem in _frame_stems(sequence)]
     position = {stem: i for i, stem in enumerate(every)}
     stems = [stem for sequence in _sequence_folders(folder, split) for stem in _frame_stems(sequence)][::stride]
@@ -234,7 +235,7 @@ def read_seven_scenes(
     images = stack_same_size([read_rgb(p, float(downscale)) for p in tqdm(paths, desc=f"7-Scenes {split}", unit="frame", leave=False)], paths)
     full = (images.shape[2] * downscale, images.shape[1] * downscale)
     if (round(full[0]), round(full[1])) != (intrinsics.width, intrinsics.height):
-        raise ValueError(f"{paths[0]}: images about {full[0]}x{full[1]}, expected {intrinsics.width}x{intrinsics.height} "
+        raise DatasetError(f"{paths[0]}: images about {full[0]}x{full[1]}, expected {intrinsics.width}x{intrinsics.height} "
                          "for the colour intrinsics given")
     camera = intrinsics.scaled(1.0 / downscale)
     T_world_cam = opencv_to_opengl(torch.from_numpy(poses))
@@ -249,7 +250,7 @@ def read_seven_scenes(
         stack = [read_depth(path, depth_stride) for path in depth_paths]
         for path, metres in zip(depth_paths, stack):
             if metres.shape != stack[0].shape:
-                raise ValueError(f"{path}: depth of size {metres.shape[1] * depth_stride}x{metres.shape[0] * depth_stride}, "
+                raise DatasetError(f"{path}: depth of size {metres.shape[1] * depth_stride}x{metres.shape[0] * depth_stride}, "
                                  f"expected {first.shape[1]}x{first.shape[0]} like {depth_paths[0]}")
         depths = torch.from_numpy(np.stack(stack))
         depth_camera = _depth_camera(folder, intrinsics).scaled(1.0 / (ratio * depth_stride))

@@ -20,6 +20,7 @@ import torch
 
 from locnerf.data.image_files import read_rgb, resolve_image_path, stack_same_size
 from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -37,25 +38,25 @@ def _load_json(path: Path) -> dict[str, Any]:
     try:
         content = json.loads(path.read_text())
     except json.JSONDecodeError as error:
-        raise ValueError(f"{path}: not valid JSON ({error})") from error
+        raise DatasetError(f"{path}: not valid JSON ({error})") from error
     if not isinstance(content, dict) or not isinstance(content.get("frames"), list) or not content["frames"]:
-        raise ValueError(f"{path}: expected an object with a non-empty 'frames' list")
+        raise DatasetError(f"{path}: expected an object with a non-empty 'frames' list")
     return content
 
 
 def _frame_pose(frame: dict[str, Any], path: Path, position: int) -> np.ndarray:
     matrix = np.asarray(frame.get("transform_matrix"), dtype=np.float64)
     if matrix.shape != (4, 4):
-        raise ValueError(f"{path}: frame {position} transform_matrix of shape {matrix.shape}, expected (4, 4)")
+        raise DatasetError(f"{path}: frame {position} transform_matrix of shape {matrix.shape}, expected (4, 4)")
     if not np.isfinite(matrix).all():
-        raise ValueError(f"{path}: frame {position} ({frame.get('file_path')}) has a NaN or infinite pose")
+        raise DatasetError(f"{path}: frame {position} ({frame.get('file_path')}) has a NaN or infinite pose")
     return matrix
 
 
 def _background(background: str | tuple[float, float, float]) -> tuple[float, float, float]:
     if isinstance(background, str):
         if background not in BACKGROUNDS:
-            raise ValueError(f"background {background!r}: expected one of {sorted(BACKGROUNDS)} or an RGB triple")
+            raise DatasetError(f"background {background!r}: expected one of {sorted(BACKGROUNDS)} or an RGB triple")
         return BACKGROUNDS[background]
     return tuple(float(c) for c in background)  # type: ignore[return-value]
 
@@ -77,7 +78,7 @@ def read_nerf_synthetic(
     path = folder / f"transforms_{split}.json"
     content = _load_json(path)
     if "camera_angle_x" not in content:
-        raise ValueError(f"{path}: no camera_angle_x (the horizontal field of view) given")
+        raise DatasetError(f"{path}: no camera_angle_x (the horizontal field of view) given")
     frames = _present_frames(content["frames"], folder, path, skip_missing)
     rgb = _background(background)
     paths = [resolve_image_path(folder / frame["file_path"]) for frame in frames]
@@ -126,14 +127,14 @@ def _frame_camera(content: dict[str, Any], frame: dict[str, Any], path: Path) ->
 
     width, height = value("w"), value("h")
     if width is None or height is None:
-        raise ValueError(f"{path}: frame {frame.get('file_path')} has no image size w, h")
+        raise DatasetError(f"{path}: frame {frame.get('file_path')} has no image size w, h")
     if value("fl_x") is not None:
         fx = float(value("fl_x"))
         fy = float(value("fl_y") if value("fl_y") is not None else fx)
     elif value("camera_angle_x") is not None:
         fx = fy = 0.5 * float(width) / math.tan(0.5 * float(value("camera_angle_x")))
     else:
-        raise ValueError(f"{path}: frame {frame.get('file_path')} has no intrinsics (fl_x/fl_y or camera_angle_x)")
+        raise DatasetError(f"{path}: frame {frame.get('file_path')} has no intrinsics (fl_x/fl_y or camera_angle_x)")
     cx = float(value("cx") if value("cx") is not None else width / 2.0)
     cy = float(value("cy") if value("cy") is not None else height / 2.0)
     intrinsics = PinholeIntrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=int(width), height=int(height))
@@ -174,13 +175,13 @@ def read_nerfstudio(path: str | Path, downscale: int = 1, split: str = "all", ho
     first = cameras[0][0]
     for (camera, _), i in zip(cameras, positions):
         if camera != first:
-            raise ValueError(f"{path}: frame {frames[i].get('file_path')} has camera {camera}, expected one shared camera {first}")
+            raise DatasetError(f"{path}: frame {frames[i].get('file_path')} has camera {camera}, expected one shared camera {first}")
     paths = [resolve_image_path(path.parent / frames[i]["file_path"]) for i in positions]
     rgb = _background(background)
     raw = [read_rgb(p, 1.0, rgb) for p in paths]
     for image, image_path in zip(raw, paths):
         if image.shape[:2] != (first.height, first.width):
-            raise ValueError(f"image {image_path} is {image.shape[1]}x{image.shape[0]}: expected {first.width}x{first.height} from {path}")
+            raise DatasetError(f"image {image_path} is {image.shape[1]}x{image.shape[0]}: expected {first.width}x{first.height} from {path}")
     undistorted = [_undistort(image, camera, distortion) for image, (camera, distortion) in zip(raw, cameras)]
     if downscale != 1:
         size = (max(1, round(first.width / downscale)), max(1, round(first.height / downscale)))
@@ -217,4 +218,4 @@ def _split(count: int, split: str, holdout_every: int) -> list[int]:
         return sorted(held_out)
     if split == "train":
         return [i for i in range(count) if i not in held_out]
-    raise ValueError(f"split {split!r}: expected all, train or test for a nerfstudio transforms.json")
+    raise DatasetError(f"split {split!r}: expected all, train or test for a nerfstudio transforms.json")

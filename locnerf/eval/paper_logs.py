@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from locnerf.errors import DatasetError
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
 from locnerf.geometry.validation import validate_poses
 
@@ -87,9 +88,9 @@ class LoggedTrial:
 def _load(path: Path, shape_tail: tuple[int, ...]) -> torch.Tensor:
     array = np.load(path)
     if tuple(array.shape[len(array.shape) - len(shape_tail) :]) != shape_tail:
-        raise ValueError(f"{path}: expected shape (..., {', '.join(map(str, shape_tail))}), got {array.shape}")
+        raise DatasetError(f"{path}: expected shape (..., {', '.join(map(str, shape_tail))}), got {array.shape}")
     if not np.isfinite(array).all():
-        raise ValueError(f"{path}: contains NaN or inf")
+        raise DatasetError(f"{path}: contains NaN or inf")
     return torch.from_numpy(array.astype(np.float64))
 
 
@@ -97,13 +98,13 @@ def _filled_slots(poses: torch.Tensor, path: Path) -> int:
     """Number of leading filled (not all-zero) slots of ``poses`` (K, 4, 4).
 
     Raises:
-        ValueError: if an all-zero slot comes before a filled one, or no slot is filled.
+        DatasetError: if an all-zero slot comes before a filled one, or no slot is filled.
     """
     empty = (poses == 0).flatten(1).all(dim=1)
     filled = int((~empty).nonzero().max()) + 1 if (~empty).any() else 0
     if filled == 0 or empty[:filled].any():
         first = int(empty.nonzero()[0])
-        raise ValueError(f"{path}: slot {first} of {len(poses)} is an all-zero matrix before filled ones; expected estimates, then only unfilled slots")
+        raise DatasetError(f"{path}: slot {first} of {len(poses)} is an all-zero matrix before filled ones; expected estimates, then only unfilled slots")
     return filled
 
 
@@ -119,7 +120,7 @@ def _run(folder: Path, prefix: str, passes_per_slot: int | None = None) -> Logge
     if passes_path.exists():
         passes = torch.from_numpy(np.load(passes_path).astype(np.int64))
         if passes.shape != (len(poses),):
-            raise ValueError(f"{passes_path}: expected shape ({len(poses)},) to match {poses_path.name}, got {tuple(passes.shape)}")
+            raise DatasetError(f"{passes_path}: expected shape ({len(poses)},) to match {poses_path.name}, got {tuple(passes.shape)}")
         passes = passes[:filled]
     elif passes_per_slot is not None:
         passes = torch.arange(filled, dtype=torch.int64) * passes_per_slot
@@ -133,7 +134,7 @@ def read_logged_trials(folder: str | Path, scene: str | None = None) -> list[Log
 
     Raises:
         FileNotFoundError: if the folder does not exist or holds no ``gt_*_poses.npy`` file.
-        ValueError: if a file has the wrong shape or non-finite values.
+        DatasetError: if a file has the wrong shape or non-finite values.
     """
     folder = Path(folder)
     if not folder.is_dir():

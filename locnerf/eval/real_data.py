@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import torch
 
 from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError
 from locnerf.eval.paper_logs import LoggedRun, LoggedTrial
 from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialConfig, TrialResult, run_trial
 from locnerf.field.protocol import RadianceMap
@@ -39,17 +40,17 @@ def logged_views(posed: PosedImages, trials: list[LoggedTrial], held_out: set[in
     """Views for logged trials; ``posed`` must hold every frame (``split="all"``).
 
     Raises:
-        ValueError: if a logged frame is missing or its logged truth disagrees with the reader's.
+        DatasetError: if a logged frame is missing or its logged truth disagrees with the reader's.
     """
     views = []
     for trial in trials:
         if trial.frame not in posed.indices:
-            raise ValueError(f"logged frame {trial.frame} of {trial.scene} is not among the {len(posed)} images read from {posed.source}")
+            raise DatasetError(f"logged frame {trial.frame} of {trial.scene} is not among the {len(posed)} images read from {posed.source}")
         position = posed.indices.index(trial.frame)
         truth = posed.T_world_cam[position].double()
         gap = float(translation_error(truth, trial.truth)) + float(rotation_error_deg(truth, trial.truth)) / 180.0
         if gap > 1e-3:
-            raise ValueError(f"frame {trial.frame}: logged ground truth differs from the reader's pose (gap {gap:.2e}); wrong data set or normalisation?")
+            raise DatasetError(f"frame {trial.frame}: logged ground truth differs from the reader's pose (gap {gap:.2e}); wrong data set or normalisation?")
         views.append(View(trial.frame, posed.names[position], truth, posed.images[position], trial.frame in held_out, trial.translation_offset, trial))
     return views
 
@@ -84,10 +85,10 @@ def logged_curve(run: LoggedRun, truth: torch.Tensor) -> Curve:
     """A logged run's error curve against rays rendered.
 
     Raises:
-        ValueError: if the run logged no forward passes.
+        DatasetError: if the run logged no forward passes.
     """
     if run.rays is None:
-        raise ValueError("logged run without forward passes: expected a *_forward_passes.npy file or a known cost per slot")
+        raise DatasetError("logged run without forward passes: expected a *_forward_passes.npy file or a known cost per slot")
     t_err, r_err = run.errors(truth)
     return run.rays.tolist(), t_err.tolist(), r_err.tolist()
 

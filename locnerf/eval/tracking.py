@@ -23,6 +23,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
+from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking_source import TrackingScenario
 from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer, SearchRegion
@@ -117,7 +118,7 @@ def run_tracking(
     camera (the services do not do this).
     """
     if updates_per_image < 1:
-        raise ValueError(f"updates per image {updates_per_image}: expected >= 1")
+        raise LocnerfInputError(f"updates per image {updates_per_image}: expected >= 1")
     scale = radiance_map.normalization.scale
     intrinsics = scenario.path.intrinsics
     start_particles(localizer, scenario.truth[0], start, radiance_map.normalization.up)

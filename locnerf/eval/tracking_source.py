@@ -27,6 +27,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data import PosedImages
+from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import make_pose, pose_inverse, se3_exp, se3_log
 from locnerf.render.camera import PinholeIntrinsics
@@ -108,7 +109,7 @@ class SequencePath:
 
     def __init__(self, frames: PosedImages, speed: float, odom_rate: float) -> None:
         if len(frames) < 2:
-            raise ValueError(f"{frames.source}: {len(frames)} frame(s), expected at least 2 to follow a path")
+            raise DatasetError(f"{frames.source}: {len(frames)} frame(s), expected at least 2 to follow a path")
         if speed <= 0:
             raise ValueError(f"speed {speed}: expected a positive nominal speed (units per second)")
         self.frames = frames
@@ -201,10 +202,10 @@ def build_scenario(path: CameraPath, config: ScenarioConfig, normalization: MapN
     """Sample the path on the odometry grid, apply the kidnapping, simulate the odometry."""
     odom_rate = config.vio.rate
     if config.image_rate > odom_rate:
-        raise ValueError(f"image rate {config.image_rate} Hz above the odometry rate {odom_rate} Hz: expected image_rate <= odom_rate")
+        raise LocnerfInputError(f"image rate {config.image_rate} Hz above the odometry rate {odom_rate} Hz: expected image_rate <= odom_rate")
     duration = config.duration if config.duration is not None else path.duration
     if config.kidnap_at is not None and config.kidnap_at >= duration:
-        raise ValueError(f"kidnap_at {config.kidnap_at} s: expected a time inside the run (0, {duration}) s")
+        raise LocnerfInputError(f"kidnap_at {config.kidnap_at} s: expected a time inside the run (0, {duration}) s")
     count = math.floor(duration * odom_rate + 1e-9) + 1
     stamps = torch.arange(count, dtype=torch.float64) / odom_rate
     path_times = stamps.clone()

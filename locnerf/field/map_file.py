@@ -38,6 +38,7 @@ from typing import Any, Protocol
 
 import torch
 
+from locnerf.errors import MapFileError
 from locnerf.field.grid_map import GRID_KIND, GridMap
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import NERF_PYTORCH_KIND, NerfPytorchMap
@@ -49,10 +50,6 @@ FORMAT_VERSION = 2
 MAGIC = b"LOCNMAP\x00"
 HEADER = struct.Struct(">8sIQ32s")
 BACKENDS = {GRID_KIND: GridMap, NERF_PYTORCH_KIND: NerfPytorchMap}
-
-
-class MapFileError(ValueError):
-    """A map file that cannot be loaded: truncated, foreign, or written by a newer version."""
 
 
 class SavableMap(Protocol):

@@ -14,6 +14,7 @@ from typing import Any
 
 import torch
 
+from locnerf.errors import MapFileError
 from locnerf.field.encoding import frequency_encoding
 from locnerf.field.map_info import MapInfo
 from locnerf.field.stored_map import StoredMap
@@ -158,7 +159,7 @@ def load_nerf_pytorch_checkpoint(checkpoint: str | Path, info: MapInfo, white_ba
     """A map from a nerf-pytorch ``.tar`` checkpoint; ``info`` comes from the data set it was trained on.
 
     Raises:
-        ValueError: naming the file when it lacks the network state dicts or their shapes differ.
+        MapFileError: naming the file when it lacks the network state dicts or their shapes differ.
     """
     path = Path(checkpoint)
     if not path.is_file():
@@ -166,11 +167,11 @@ def load_nerf_pytorch_checkpoint(checkpoint: str | Path, info: MapInfo, white_ba
     try:
         content = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # truncated or not a torch archive
-        raise ValueError(f"checkpoint {path}: cannot be read as a nerf-pytorch checkpoint ({error})") from error
+        raise MapFileError(f"checkpoint {path}: cannot be read as a nerf-pytorch checkpoint ({error})") from error
     missing = [key for key in ("network_fn_state_dict", "network_fine_state_dict") if key not in content]
     if missing:
-        raise ValueError(f"checkpoint {path}: missing {', '.join(missing)} (expected a nerf-pytorch .tar with both networks)")
+        raise MapFileError(f"checkpoint {path}: missing {', '.join(missing)} (expected a nerf-pytorch .tar with both networks)")
     try:
         return NerfPytorchMap.from_state({**content, "white_background": white_background}, info, torch.device(device))
     except RuntimeError as error:
-        raise ValueError(f"checkpoint {path}: networks do not match nerf-pytorch's 8x256 layout with view directions ({error})") from error
+        raise MapFileError(f"checkpoint {path}: networks do not match nerf-pytorch's 8x256 layout with view directions ({error})") from error

@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
 from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError
 from locnerf.field.grid import GridField, GridFieldConfig, grid_shape_for_box
 from locnerf.field.grid_map import GridMap
 from locnerf.field.map_info import MapInfo
@@ -133,12 +134,12 @@ def _depth_rays(images: PosedImages, config: BuildConfig, info: MapInfo, device:
     """The depth camera's supervised rays (origins, directions, depths) when depth is there and used; None otherwise.
 
     Raises:
-        ValueError: for depth with NDC data (depth along NDC rays is not the sensor's depth).
+        DatasetError: for depth with NDC data (depth along NDC rays is not the sensor's depth).
     """
     if images.depths is None or not config.use_depth:
         return None
     if info.normalization.ndc:
-        raise ValueError(f"{images.source}: depth supervision of NDC (forward-facing) maps is not supported; build with use_depth=False")
+        raise DatasetError(f"{images.source}: depth supervision of NDC (forward-facing) maps is not supported; build with use_depth=False")
     return depth_training_rays(images, device)
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 
 from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError
 from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 
 
@@ -17,10 +18,10 @@ def depth_training_rays(images: PosedImages, device: torch.device) -> tuple[torc
     """Rays of every valid depth pixel: origins (N, 3), directions (N, 3), observed depth (N,), float32 map units.
 
     Raises:
-        ValueError: if the images carry no depth, or no valid depth pixel.
+        DatasetError: if the images carry no depth, or no valid depth pixel.
     """
     if images.depths is None or images.depth_intrinsics is None:
-        raise ValueError(f"{images.source}: no depth images to supervise with")
+        raise DatasetError(f"{images.source}: no depth images to supervise with")
     pixels = pixel_grid(images.depth_intrinsics)
     origins, directions, depths = [], [], []
     for pose, depth in zip(images.T_world_cam.float(), images.depths.float()):
@@ -31,7 +32,7 @@ def depth_training_rays(images: PosedImages, device: torch.device) -> tuple[torc
         directions.append(ray_directions[0])
         depths.append(flat[valid])
     if not sum(len(d) for d in depths):
-        raise ValueError(f"{images.source}: every depth pixel is invalid (0)")
+        raise DatasetError(f"{images.source}: every depth pixel is invalid (0)")
     return torch.cat(origins).to(device), torch.cat(directions).to(device), torch.cat(depths).to(device)
 
 

@@ -7,6 +7,7 @@ import logging
 import sys
 from pathlib import Path
 
+from locnerf.errors import LocnerfInputError
 from services.runtime import service_main, stop_on_signals
 from services.transport.router import Router, router_config
 
@@ -17,11 +18,11 @@ def parse_override(text: str) -> tuple[str, str]:
     """``KEY:VALUE`` (zenohd's ``--cfg``): a config path and a JSON5 value.
 
     Raises:
-        ValueError: no ``:`` separating a key from a value.
+        LocnerfInputError: no ``:`` separating a key from a value.
     """
     key, separator, value = text.partition(":")
     if not separator or not key or not value:
-        raise ValueError(f"--cfg {text!r}: expected KEY:VALUE, e.g. 'listen/endpoints:[\"tls/127.0.0.1:7447\"]'")
+        raise LocnerfInputError(f"--cfg {text!r}: expected KEY:VALUE, e.g. 'listen/endpoints:[\"tls/127.0.0.1:7447\"]'")
     return key, value
 
 

@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.detect import read_dataset
 from locnerf.data.euroc import read_euroc
+from locnerf.errors import ConfigError
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus
@@ -119,7 +120,7 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
     """The configured source's event stream.
 
     Raises:
-        ValueError: a replay without a path, a camera without intrinsics or that cannot be opened.
+        ConfigError: a replay or EuRoC source without a path, a camera without intrinsics or that cannot be opened.
     """
     if config.source == "ros2":
         raise ValueError("source = 'ros2' has no event stream: it relays the ROS 2 topics as they arrive (relay_ros2)")
@@ -133,11 +134,11 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
         return scenario_events(build_source_scenario(config.scenario, config.seed), torch.Generator().manual_seed(config.seed + 1))
     if config.source == "euroc":
         if not config.euroc.path:
-            raise ValueError("source = 'euroc' needs euroc.path: the folder holding mav0/")
+            raise ConfigError("source = 'euroc' needs euroc.path: the folder holding mav0/")
         sequence = read_euroc(config.euroc.path, config.euroc.camera, config.euroc.groundtruth or None)
         return euroc_events(sequence, config.euroc, generator)
     if not config.replay.path:
-        raise ValueError("source = 'replay' needs replay.path: the data-set folder to replay")
+        raise ConfigError("source = 'replay' needs replay.path: the data-set folder to replay")
     replay = config.replay
     sequence = read_dataset(replay.path, split=replay.split, downscale=replay.downscale, skip_missing=replay.skip_missing)
     return replay_events(sequence, config.replay, generator)

@@ -9,6 +9,7 @@ from collections.abc import Iterator
 import cv2
 from pydantic import BaseModel, ConfigDict, Field
 
+from locnerf.errors import ConfigError
 from locnerf.render.camera import PinholeIntrinsics
 from services.sensor_ingest.events import ImageEvent
 
@@ -29,14 +30,15 @@ def camera_events(config: CameraSourceConfig, clock=time.time) -> Iterator[Image
     with ``clock()`` at capture.
 
     Raises:
-        ValueError: no intrinsics, a device that cannot be opened, or frames of another size.
+        ConfigError: no intrinsics, or a device that cannot be opened.
+        ValueError: frames of another size than the intrinsics'.
     """
     if config.intrinsics is None:
-        raise ValueError("source = 'camera' needs camera.intrinsics (fx, fy, cx, cy, width, height)")
+        raise ConfigError("source = 'camera' needs camera.intrinsics (fx, fy, cx, cy, width, height)")
     live = config.device.isdigit()
     capture = cv2.VideoCapture(int(config.device) if live else config.device)
     if not capture.isOpened():
-        raise ValueError(f"camera device {config.device!r}: cannot be opened (expected a camera index or a readable video file)")
+        raise ConfigError(f"camera device {config.device!r}: cannot be opened (expected a camera index or a readable video file)")
     size = (config.intrinsics.height, config.intrinsics.width)
     try:
         while True:

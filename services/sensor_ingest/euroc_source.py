@@ -21,6 +21,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.euroc import EurocCamera, EurocSequence
+from locnerf.errors import DatasetError
 from locnerf.geometry.frames import opencv_to_opengl
 from locnerf.geometry.se3 import pose_inverse
 from services.poses import interpolate_pose
@@ -72,7 +73,7 @@ def euroc_events(sequence: EurocSequence, config: EurocSourceConfig, generator: 
     odometry_stamps = begin + period * np.arange(int(math.floor((end - begin) / period)) + 1)
     frames = np.flatnonzero((sequence.image_stamps >= begin) & (sequence.image_stamps <= end))
     if len(frames) == 0:
-        raise ValueError(f"{sequence.root}: no image lies inside the ground truth's time span")
+        raise DatasetError(f"{sequence.root}: no image lies inside the ground truth's time span")
     truth = camera_trajectory_at(sequence, odometry_stamps)
     moving = truth if config.odometry_frame == "camera" else truth @ pose_inverse(euroc_T_body_cam(sequence.camera))
     intrinsics = sequence.camera.intrinsics.scaled(1.0 / config.downscale)

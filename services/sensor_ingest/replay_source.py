@@ -15,6 +15,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError
 from services.poses import interpolate_pose, map_to_metric
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
@@ -37,7 +38,7 @@ class ReplaySourceConfig(BaseModel):
 def replay_events(sequence: PosedImages, config: ReplaySourceConfig, generator: torch.Generator) -> Iterator[SensorEvent]:
     """Time-ordered ground truth and odometry (same stamps, truth first) and image events."""
     if len(sequence) < 2:
-        raise ValueError(f"{sequence.source}: a replay needs at least 2 frames, got {len(sequence)}")
+        raise DatasetError(f"{sequence.source}: a replay needs at least 2 frames, got {len(sequence)}")
     poses = map_to_metric(sequence.T_world_cam.double(), sequence.normalization)
     odometry = SyntheticOdometry(config.odometry, generator)
     end = (len(sequence) - 1) / config.frame_rate

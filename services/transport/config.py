@@ -16,6 +16,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from locnerf.errors import ConfigError
+
 ENV_MODE = "LOCNERF_ZENOH_MODE"
 ENV_CONNECT = "LOCNERF_ZENOH_CONNECT"
 ENV_LISTEN = "LOCNERF_ZENOH_LISTEN"
@@ -119,9 +121,9 @@ def _tls_from_environment(current: TlsConfig | None, environ) -> dict[str, objec
     if "mutual" in given:
         flag = given["mutual"].strip().lower()
         if flag not in _TRUE + _FALSE:
-            raise ValueError(f"{ENV_TLS['mutual']}={given['mutual']!r}: expected true or false")
+            raise ConfigError(f"{ENV_TLS['mutual']}={given['mutual']!r}: expected true or false")
         given["mutual"] = flag in _TRUE
     base = current.model_dump() if current is not None else {}
     if "root_ca" not in base | given:
-        raise ValueError(f"TLS settings from the environment need {ENV_TLS['root_ca']} (the CA's PEM file)")
+        raise ConfigError(f"TLS settings from the environment need {ENV_TLS['root_ca']} (the CA's PEM file)")
     return base | given

@@ -11,24 +11,26 @@ from pathlib import Path
 
 import zenoh
 
+from locnerf.errors import ConfigError
+
 
 def router_config(path: Path, overrides: list[tuple[str, str]]) -> zenoh.Config:
     """The file's config with ``(key, json5 value)`` overrides, forced to router mode.
 
     Raises:
-        FileNotFoundError: a missing file. ValueError: a file or override zenoh rejects (names which).
+        FileNotFoundError: a missing file. ConfigError: a file or override zenoh rejects (names which).
     """
     if not Path(path).is_file():
         raise FileNotFoundError(f"{path}: zenoh router configuration (JSON5) not found")
     try:
         conf = zenoh.Config.from_file(str(path))
     except Exception as error:  # zenoh raises its own ZError for any parse or schema failure
-        raise ValueError(f"{path}: not a valid zenoh configuration ({error})") from None
+        raise ConfigError(f"{path}: not a valid zenoh configuration ({error})") from None
     for key, value in overrides + [("mode", '"router"')]:
         try:
             conf.insert_json5(key, value)
         except Exception as error:
-            raise ValueError(f"router override {key}:{value}: rejected by zenoh ({error})") from None
+            raise ConfigError(f"router override {key}:{value}: rejected by zenoh ({error})") from None
     return conf
 
 

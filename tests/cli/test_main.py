@@ -1,10 +1,19 @@
-"""The ``locnerf`` entry point: a light ``--help`` and an ``import locnerf`` without side effects."""
+"""The ``locnerf`` entry point: a light ``--help``, an ``import locnerf`` without side effects, and
+input errors told apart from bugs."""
 
 from __future__ import annotations
 
+import argparse
 import json
+import logging
 import subprocess
 import sys
+
+import pytest
+
+import cli.certs
+from cli.main import main
+from locnerf.errors import LocnerfInputError
 
 HEAVY_PACKAGES = {"torch", "zenoh", "services", "matplotlib"}
 
@@ -32,3 +41,24 @@ def test_importing_locnerf_leaves_the_environment_alone():
     code = "import json, os\nbefore = dict(os.environ)\nimport locnerf\nprint(json.dumps([before, dict(os.environ)]))\n"
     before, after = json.loads(run_python(code))
     assert after == before
+
+
+def test_an_input_error_is_one_line_and_its_traceback_shows_at_vv(caplog, monkeypatch):
+    def refuse(_: argparse.Namespace) -> int:
+        raise LocnerfInputError("--days 0: expected >= 1")
+
+    monkeypatch.setattr(cli.certs, "run", refuse)
+    assert main(["certs"]) == 2
+    assert caplog.records[-1].getMessage() == "--days 0: expected >= 1" and not caplog.records[-1].exc_info
+    caplog.clear()
+    assert main(["-vv", "certs"]) == 2
+    assert caplog.records[-1].levelno == logging.ERROR and caplog.records[-1].exc_info
+
+
+def test_a_bug_keeps_its_traceback(monkeypatch):
+    def broken(_: argparse.Namespace) -> int:
+        raise ValueError("internal: shapes (3,) and (4,) do not broadcast")
+
+    monkeypatch.setattr(cli.certs, "run", broken)
+    with pytest.raises(ValueError, match="do not broadcast"):
+        main(["certs"])
