@@ -17,7 +17,6 @@ from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.paper_logs import read_logged_trials
 from locnerf.eval.plots import plot_error_curves, plot_images_beside_renders, plot_mean_error_against_rays, plot_success_against_rays
-from locnerf.maps.source import open_map
 from locnerf.eval.real_data import (
     logged_curve,
     logged_views,
@@ -31,6 +30,7 @@ from locnerf.eval.real_data import (
 )
 from locnerf.eval.single_image import TrialConfig
 from locnerf.filter import Localizer
+from locnerf.maps.source import open_map
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import render_image
 
