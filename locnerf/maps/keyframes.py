@@ -27,9 +27,7 @@ def keyframe_poses(radiance_map: RadianceMap, generator: torch.Generator, world_
     return radiance_map.reference_poses().double()
 
 
-def build_keyframe_index(
-    render_rays: RenderRays, poses: torch.Tensor, intrinsics: PinholeIntrinsics, width: int = 16, supersample: int = 4
-) -> KeyframeIndex:
+def build_keyframe_index(render_rays: RenderRays, poses: torch.Tensor, intrinsics: PinholeIntrinsics, width: int = 16, supersample: int = 4) -> KeyframeIndex:
     """Render the map's thumbnail at every keyframe pose (K, 4, 4) (map frame, on the renderer's
     device) for images of ``intrinsics``: ``width`` pixels wide, from ``supersample``² rays each."""
     validate_poses(poses, name="keyframe poses")
