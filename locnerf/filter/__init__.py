@@ -1,7 +1,7 @@
 """The Loc-NeRF particle filter: particles, motion and measurement models, resampling, annealing,
 initialisation, recovery, the estimate, and the localizer that ties them together (no I/O)."""
 
-from locnerf.filter.estimate import PoseEstimate
+from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.localizer import (
     ConvergenceProtectionConfig,
     Localizer,
@@ -18,7 +18,7 @@ __all__ = [
     "LocalizerConfig",
     "MergeReport",
     "ParticleSet",
-    "PoseEstimate",
+    "ParticleEstimate",
     "SearchRegion",
     "UpdateSnapshot",
 ]

@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
-from locnerf.filter.estimate import PoseEstimate, estimate_from_particles
+from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
 from locnerf.filter.keyframes import KeyframeIndex
 from locnerf.filter.kld import KldConfig, kld_resample
 from locnerf.filter.lineage import NO_ANCESTOR, Lineage, lookup
@@ -383,7 +383,7 @@ class Localizer:
         poses, _ = self.keyframes.query(image, recovery.keyframe_count)
         return KeyframeCandidates(poses, self.keyframes.spacing)
 
-    def estimate(self) -> PoseEstimate:
+    def estimate(self) -> ParticleEstimate:
         """The current estimate (weighted mean pose, covariance, spread, ESS).
 
         Particles injected by recovery at the last resampling have not been weighed by any image

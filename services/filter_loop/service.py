@@ -20,7 +20,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from locnerf.field.protocol import MapNormalization
-from locnerf.filter.estimate import PoseEstimate as FilterEstimate, carry_estimate
+from locnerf.filter.estimate import ParticleEstimate, carry_estimate
 from locnerf.filter.localizer import Localizer, SearchRegion
 from locnerf.filter.measurement import observed_colours, sample_pixels_of_image
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
@@ -36,7 +36,7 @@ from locnerf.messages.schemas import (
     PoseEstimate,
     UpdateResult,
 )
-from services.filter_loop.dispatcher import UnknownRequestError, UpdateDispatcher
+from services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
 from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.state_file import SavedPose, load_pose
@@ -46,6 +46,7 @@ from services.runtime import BadMessages, RateMeter
 logger = logging.getLogger(__name__)
 
 Outgoing = list[tuple[str, bytes]]
+"""Messages to publish: (key expression, payload bytes) pairs."""
 
 # Added to a restored covariance so that a fully converged (rank-deficient) one can be sampled.
 _COVARIANCE_JITTER = 1e-10
@@ -137,7 +138,7 @@ class FilterLoop:
         self._last_particles = self._last_status = -float("inf")
         self._state_file = Path(config.state_file) if config.state_file else None
         self._state_writer = StateWriter(self._state_file, config.state_save_rate) if self._state_file else None
-        self._estimate: FilterEstimate | None = None
+        self._estimate: ParticleEstimate | None = None
         self._estimate_stale = False
         self._pending_increment: torch.Tensor | None = None
         self._prediction_pending = False
@@ -361,8 +362,8 @@ class FilterLoop:
         logger.info("worker %s (%s) %s", worker_id, device, "joined" if alive else "left")
         return self._requests(self.dispatcher.worker_changed(worker_id, device, alive))
 
-    def _requests(self, outgoing: list) -> Outgoing:
-        return [(self._key(keys.UPDATE_REQUEST, worker_id=worker), encode(request)) for worker, request in outgoing]
+    def _requests(self, addressed: list[AddressedRequest]) -> Outgoing:
+        return [(self._key(keys.UPDATE_REQUEST, worker_id=worker), encode(request)) for worker, request in addressed]
 
     def close(self) -> None:
         """Stop the state writer after writing the last pose (if a state file is configured)."""
