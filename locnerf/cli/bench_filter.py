@@ -29,6 +29,7 @@ import torch
 from locnerf.cli.bench_table import BenchTable
 from locnerf.cli.map_source import open_map
 from locnerf.devices import resolve_device
+from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.estimate import estimate_from_particles
 from locnerf.filter.measurement import particle_log_likelihoods, sample_pixels
 from locnerf.filter.motion import propagate_poses
@@ -102,7 +103,7 @@ def build_targets(particles: int, pixels: int, map_spec: str, device: torch.devi
         "resample_multinomial": lambda: multinomial_resample(weights, particles, generator),
         "resample_systematic": lambda: systematic_resample(weights, particles, generator),
         "rotation_mean": lambda: geodesic_rotation_mean(poses[:, :3, :3], weights),
-        "estimate": lambda: estimate_from_particles(particle_set, "coarse"),
+        "estimate": lambda: estimate_from_particles(particle_set, AnnealingStage.COARSE),
         "encode_request": lambda: encode(request),
         "decode_request": lambda: decode(request_bytes, UpdateRequest),
         "encode_result": lambda: encode(result),

@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
+from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.motion import PivotNoise
 from locnerf.filter.particles import ParticleSet, weighted_position_spread
 from locnerf.filter.resampling import effective_sample_size
@@ -30,7 +31,7 @@ class ParticleEstimate:
         spread: largest per-axis weighted std of particle positions (map units).
         effective_sample_size: ``1 / Σ w²``.
         particle_count: N.
-        stage: annealing stage name.
+        stage: the annealing stage of the filter.
     """
 
     pose: torch.Tensor
@@ -38,10 +39,10 @@ class ParticleEstimate:
     spread: float
     effective_sample_size: float
     particle_count: int
-    stage: str
+    stage: AnnealingStage
 
 
-def estimate_from_particles(particles: ParticleSet, stage: str, include: torch.Tensor | None = None) -> ParticleEstimate:
+def estimate_from_particles(particles: ParticleSet, stage: AnnealingStage, include: torch.Tensor | None = None) -> ParticleEstimate:
     """Compute the estimate of design section 1 from a particle set (in float64).
 
     Args:

@@ -21,12 +21,13 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import ParticleEstimate, carry_estimate
-from locnerf.filter.localizer import Localizer, SearchRegion
+from locnerf.filter.localizer import Localizer, MergeOutcome, SearchRegion
 from locnerf.filter.measurement import observed_colours, sample_pixels_of_image
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, decode_image, encode
 from locnerf.messages.schemas import (
+    FilterState,
     FilterStatus,
     GlobalLocalizationCommand,
     ImageHeader,
@@ -314,7 +315,7 @@ class FilterLoop:
         if completed.image is not None:
             find_candidates = partial(self.localizer.keyframe_candidates, completed.image, completed.intrinsics)
         report = self.localizer.merge(completed.epoch, completed.generation, completed.ids, completed.log_likelihoods, find_candidates)
-        if report.outcome == "merged":
+        if report.outcome is MergeOutcome.MERGED:
             self.rates["update"].tick()
             self.latencies.append(completed.latency)
             self._estimate_stale = True
@@ -439,7 +440,7 @@ class FilterLoop:
         """The current health summary."""
         return FilterStatus(
             stamp=self.history.latest_stamp or 0.0,
-            state="running" if self.running else "waiting_for_initialisation",
+            state=FilterState.RUNNING if self.running else FilterState.WAITING_FOR_INITIALISATION,
             rates_hz={name: meter.rate() for name, meter in self.rates.items()},
             update_latency_s=sum(self.latencies) / len(self.latencies) if self.latencies else None,
             in_flight=self.dispatcher.in_flight,

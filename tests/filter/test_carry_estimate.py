@@ -2,6 +2,7 @@
 
 import torch
 
+from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.estimate import ParticleEstimate, carry_estimate
 from locnerf.filter.initialization import gaussian_particles
 from locnerf.filter.motion import PivotNoise, propagate_poses
@@ -19,7 +20,7 @@ def _monte_carlo(mean: torch.Tensor, covariance: torch.Tensor, increment: torch.
 
 
 def _estimate(mean: torch.Tensor, covariance: torch.Tensor) -> ParticleEstimate:
-    return ParticleEstimate(mean, covariance, spread=0.0, effective_sample_size=1.0, particle_count=1, stage="COARSE")
+    return ParticleEstimate(mean, covariance, spread=0.0, effective_sample_size=1.0, particle_count=1, stage=AnnealingStage.COARSE)
 
 
 def _correlated_covariance() -> torch.Tensor:
