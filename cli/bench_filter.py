@@ -29,6 +29,7 @@ import torch
 from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
+from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.estimate import estimate_from_particles
 from locnerf.filter.measurement import particle_log_likelihoods, sample_pixels
 from locnerf.filter.motion import propagate_poses
@@ -103,7 +104,7 @@ def build_targets(particles: int, pixels: int, map_spec: str, device: torch.devi
         "resample_multinomial": lambda: multinomial_resample(weights, particles, generator),
         "resample_systematic": lambda: systematic_resample(weights, particles, generator),
         "rotation_mean": lambda: geodesic_rotation_mean(poses[:, :3, :3], weights),
-        "estimate": lambda: estimate_from_particles(particle_set, "coarse"),
+        "estimate": lambda: estimate_from_particles(particle_set, AnnealingStage.COARSE),
         "encode_request": lambda: encode(request),
         "decode_request": lambda: decode(request_bytes, UpdateRequest),
         "encode_result": lambda: encode(result),

@@ -30,6 +30,7 @@ from locnerf.messages.codec import SCHEMA_VERSION, DecodeError, decode, decode_i
 from locnerf.messages.schemas import (
     MAX_ABS_STAMP,
     WIRE_TYPES,
+    FilterState,
     FilterStatus,
     GlobalLocalizationCommand,
     ImageHeader,
@@ -217,7 +218,7 @@ _request = st.builds(
     st.integers(1, 8),
 )
 _status = st.builds(
-    lambda s, w: FilterStatus(stamp=s, state="running", rates_hz={"pose": 15.0}, update_latency_s=None, in_flight=0, workers=w, counters={}),
+    lambda s, w: FilterStatus(stamp=s, state=FilterState.RUNNING, rates_hz={"pose": 15.0}, update_latency_s=None, in_flight=0, workers=w, counters={}),
     _stamps,
     st.lists(st.text(max_size=8), max_size=3),
 )

@@ -1,11 +1,12 @@
 """The Loc-NeRF particle filter: particles, motion and measurement models, resampling, annealing,
 initialisation, recovery, the estimate, and the localizer that ties them together (no I/O)."""
 
-from locnerf.filter.estimate import PoseEstimate
+from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.localizer import (
     ConvergenceProtectionConfig,
     Localizer,
     LocalizerConfig,
+    MergeOutcome,
     MergeReport,
     SearchRegion,
     UpdateSnapshot,
@@ -16,9 +17,10 @@ __all__ = [
     "ConvergenceProtectionConfig",
     "Localizer",
     "LocalizerConfig",
+    "MergeOutcome",
     "MergeReport",
     "ParticleSet",
-    "PoseEstimate",
+    "ParticleEstimate",
     "SearchRegion",
     "UpdateSnapshot",
 ]

@@ -12,8 +12,8 @@ import enum
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
-class AnnealingStage(enum.Enum):
-    """How far the filter has converged."""
+class AnnealingStage(enum.StrEnum):
+    """How far the filter has converged (the values are the ``mode`` of the wire PoseEstimate)."""
 
     COARSE = "coarse"
     REFINE = "refine"

@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
+from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.motion import PivotNoise
 from locnerf.filter.particles import ParticleSet, weighted_position_spread
 from locnerf.filter.resampling import effective_sample_size
@@ -20,7 +21,7 @@ iterations for 1e-9 rad and fewer for this, which is far below any error the fil
 
 
 @dataclass(frozen=True)
-class PoseEstimate:
+class ParticleEstimate:
     """One estimate of the camera pose.
 
     Attributes:
@@ -30,7 +31,7 @@ class PoseEstimate:
         spread: largest per-axis weighted std of particle positions (map units).
         effective_sample_size: ``1 / Σ w²``.
         particle_count: N.
-        stage: annealing stage name.
+        stage: the annealing stage of the filter.
     """
 
     pose: torch.Tensor
@@ -38,10 +39,10 @@ class PoseEstimate:
     spread: float
     effective_sample_size: float
     particle_count: int
-    stage: str
+    stage: AnnealingStage
 
 
-def estimate_from_particles(particles: ParticleSet, stage: str, include: torch.Tensor | None = None) -> PoseEstimate:
+def estimate_from_particles(particles: ParticleSet, stage: AnnealingStage, include: torch.Tensor | None = None) -> ParticleEstimate:
     """Compute the estimate of design section 1 from a particle set (in float64).
 
     Args:
@@ -56,7 +57,7 @@ def estimate_from_particles(particles: ParticleSet, stage: str, include: torch.T
         include = include.cpu()
         poses, weights = poses[include], weights[include] / weights[include].sum()
     mean, covariance = weighted_pose_mean_and_covariance(poses, weights, ROTATION_MEAN_TOLERANCE)
-    return PoseEstimate(
+    return ParticleEstimate(
         pose=mean,
         covariance=covariance,
         spread=weighted_position_spread(poses[:, :3, 3], weights),
@@ -66,12 +67,12 @@ def estimate_from_particles(particles: ParticleSet, stage: str, include: torch.T
     )
 
 
-def carry_estimate(estimate: PoseEstimate, increment: torch.Tensor | None, sigma: torch.Tensor, pivot: PivotNoise | None = None) -> PoseEstimate:
+def carry_estimate(estimate: ParticleEstimate, increment: torch.Tensor | None, sigma: torch.Tensor, pivot: PivotNoise | None = None) -> ParticleEstimate:
     """The estimate moved by one prediction step (eq. 4) without touching the particles.
 
     Eq. 4 moves every particle by ``X·O·Exp(δ)``; its mean moves to ``pose·O`` (δ has zero mean)
     and its tangent-space covariance, to first order, to ``J Σ Jᵀ + diag(σ²)`` with
-    ``J = [[R_Oᵀ, 0], [−R_Oᵀ [t_O]×, R_Oᵀ]]`` (rotation first, as in :class:`PoseEstimate`).
+    ``J = [[R_Oᵀ, 0], [−R_Oᵀ [t_O]×, R_Oᵀ]]`` (rotation first, as in :class:`ParticleEstimate`).
     This is how the filter publishes a pose at the odometry rate between image updates, as
     amcl's map→odom transform does: the particles' weighted mean differs from it only by the
     sampling scatter of the noise draws.

@@ -9,6 +9,7 @@ counted. The localizer is used from one thread only.
 
 from __future__ import annotations
 
+import enum
 import logging
 import math
 from collections.abc import Callable
@@ -19,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
-from locnerf.filter.estimate import PoseEstimate, estimate_from_particles
+from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
 from locnerf.filter.keyframes import KeyframeIndex
 from locnerf.filter.kld import KldConfig, kld_resample
 from locnerf.filter.lineage import NO_ANCESTOR, Lineage, lookup
@@ -99,20 +100,26 @@ class UpdateSnapshot:
     poses: torch.Tensor
 
 
+class MergeOutcome(enum.StrEnum):
+    """What merging one update result did (the values name the localizer's counters)."""
+
+    MERGED = "merged"
+    """Weighed, resampled and annealed."""
+    STALE = "stale"
+    """Snapshot from an older epoch or an untraceable generation: nothing changed."""
+    DEGENERATE = "degenerate"
+    """No particle had a finite likelihood: weights and particles left unchanged, no resampling."""
+
+
 @dataclass(frozen=True)
 class MergeReport:
-    """Outcome of merging one update result.
+    """Outcome of merging one update result, and the particles after it."""
 
-    ``outcome`` is ``merged``, ``stale`` (snapshot from an older epoch or an untraceable generation:
-    nothing changed) or ``degenerate`` (no particle had a finite likelihood: weights and particles
-    left unchanged, no resampling).
-    """
-
-    outcome: str
+    outcome: MergeOutcome
     generation: int
     effective_sample_size: float
     particle_count: int
-    stage: str
+    stage: AnnealingStage
     injected: int = 0
 
 
@@ -236,14 +243,16 @@ class Localizer:
             poses = poses @ carry.to(self.device, self.dtype)
         return UpdateSnapshot(self.epoch, particles.generation, particles.ids.clone(), poses)
 
-    def _report(self, outcome: str, injected: int = 0) -> MergeReport:
+    def _record(self, outcome: MergeOutcome, injected: int = 0) -> MergeReport:
+        """Count ``outcome`` and describe the particles after it."""
         particles = self._require_particles()
+        self.counters[outcome.value] += 1
         return MergeReport(
             outcome=outcome,
             generation=particles.generation,
             effective_sample_size=effective_sample_size(particles.weights),
             particle_count=particles.count,
-            stage=self.stage.value,
+            stage=self.stage,
             injected=injected,
         )
 
@@ -273,24 +282,21 @@ class Localizer:
                 f"update result: expected ids (K,) and log_likelihoods (K,) of equal length, got {tuple(ids.shape)} and {tuple(log_likelihoods.shape)}"
             )
         if epoch != self.epoch:
-            self.counters["stale"] += 1
             logger.info("dropping an update from epoch %d (current epoch %d)", epoch, self.epoch)
-            return self._report("stale")
+            return self._record(MergeOutcome.STALE)
         try:
             ancestors = self._lineage.ancestors(particles.ids, particles.generation, generation)
         except ValueError as error:
-            self.counters["stale"] += 1
             logger.info("dropping an update: %s", error)
-            return self._report("stale")
+            return self._record(MergeOutcome.STALE)
 
         log_likelihoods = torch.nan_to_num(log_likelihoods, nan=-torch.inf)
         order = torch.argsort(ids)
         per_particle = lookup(ids[order], log_likelihoods[order], ancestors, float("nan"))
         finite = torch.isfinite(log_likelihoods)
         if not bool(finite.any()):
-            self.counters["degenerate"] += 1
             logger.warning("degenerate update (no finite likelihood): particles and weights kept unchanged")
-            return self._report("degenerate")
+            return self._record(MergeOutcome.DEGENERATE)
         # Particles with no ancestor in the snapshot (injected since) get the median likelihood.
         missing = torch.isnan(per_particle) | (ancestors == NO_ANCESTOR)
         per_particle[missing] = log_likelihoods[finite].median()
@@ -299,8 +305,7 @@ class Localizer:
         particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
         plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
         injected = self._resample(particles, plan, find_candidates)
-        self.counters["merged"] += 1
-        return self._report("merged", injected)
+        return self._record(MergeOutcome.MERGED, injected)
 
     @staticmethod
     def _log_best_likelihood(particles: ParticleSet, per_particle: torch.Tensor) -> float:
@@ -332,7 +337,7 @@ class Localizer:
         parents = particles.ids[indices]
         injected = int(round(plan.fraction * target))
         if injected > 0:
-            estimate = estimate_from_particles(particles, self.stage.value).pose
+            estimate = estimate_from_particles(particles, self.stage).pose
             candidates = find_candidates() if find_candidates is not None else None
             fresh = injection_poses(
                 plan, injected, self.config.recovery, estimate, self.region.bounds(), self.region.up, self.generator, candidates
@@ -383,7 +388,7 @@ class Localizer:
         poses, _ = self.keyframes.query(image, recovery.keyframe_count)
         return KeyframeCandidates(poses, self.keyframes.spacing)
 
-    def estimate(self) -> PoseEstimate:
+    def estimate(self) -> ParticleEstimate:
         """The current estimate (weighted mean pose, covariance, spread, ESS).
 
         Particles injected by recovery at the last resampling have not been weighed by any image
@@ -393,5 +398,5 @@ class Localizer:
         particles = self._require_particles()
         weighed = particles.parent_ids != NO_ANCESTOR
         if bool(weighed.all()) or not bool(weighed.any()):  # nothing injected, or a fresh initialisation
-            return estimate_from_particles(particles, self.stage.value)
-        return estimate_from_particles(particles, self.stage.value, include=weighed)
+            return estimate_from_particles(particles, self.stage)
+        return estimate_from_particles(particles, self.stage, include=weighed)

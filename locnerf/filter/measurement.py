@@ -16,15 +16,14 @@ protocol's success from 45 % to 70 % at 100 updates (docs/RESULTS.md).
 
 from __future__ import annotations
 
-from typing import Callable, Literal
+from typing import Literal
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import RenderRays
 from locnerf.render.rays import rays_from_poses_and_pixels
-
-RenderRays = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 # Floor on the per-particle squared error, so that a perfect render gives a large finite weight.
 _MIN_SQUARED_ERROR = 1e-12

@@ -7,11 +7,13 @@ they carry the filter's particles in map units, since worker and filter share on
 
 from __future__ import annotations
 
+import enum
 import math
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from locnerf.filter.annealing import AnnealingStage
 from locnerf.render.camera import PinholeIntrinsics
 
 Matrix = list[list[float]]
@@ -119,7 +121,7 @@ class PoseEstimate(PoseStamped):
     particle_count: int = Field(ge=0, description="Particles in the filter.")
     spread: float = Field(ge=0, description="Weighted spread of particle positions, metres.")
     effective_sample_size: float = Field(ge=0, description="Effective sample size of the weights.")
-    mode: str = Field(description="Annealing stage of the filter (coarse, refine, super_refine).")
+    mode: AnnealingStage = Field(description="Annealing stage of the filter (coarse, refine, super_refine).")
     epoch: int = Field(ge=0, description="Initialisation epoch of the filter.")
 
     @field_validator("covariance")
@@ -141,10 +143,19 @@ class ParticleCloud(Stamped):
         return self
 
 
+class FilterState(enum.StrEnum):
+    """Whether the filter is localizing (the ``state`` of a FilterStatus)."""
+
+    WAITING_FOR_INITIALISATION = "waiting_for_initialisation"
+    """No particles yet: waiting for an initial pose or a global-localization command."""
+    RUNNING = "running"
+    """Particles exist: every odometry message gets a pose."""
+
+
 class FilterStatus(Stamped):
     """Health of the filter loop."""
 
-    state: str = Field(description="waiting_for_initialisation or running.")
+    state: FilterState = Field(description="waiting_for_initialisation or running.")
     rates_hz: dict[str, float] = Field(description="Measured rates: odometry, pose, image, update.")
     update_latency_s: float | None = Field(description="Mean time from update request to merge over the last updates, seconds.")
     in_flight: int = Field(ge=0, description="Update shards sent and not yet answered.")

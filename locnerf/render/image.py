@@ -10,6 +10,7 @@ from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 
 RenderRays = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+"""A ray-colour callable: origins (R, 3), directions (R, 3) -> rgb (R, 3) in [0, 1] (a field and its renderer)."""
 
 
 def render_image(

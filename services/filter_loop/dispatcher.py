@@ -57,7 +57,8 @@ class CompletedUpdate:
     intrinsics: PinholeIntrinsics
 
 
-Outgoing = tuple[str, UpdateRequest]
+AddressedRequest = tuple[str, UpdateRequest]
+"""An update request shard and the id of the worker it goes to: (worker_id, request)."""
 
 ISSUED_MEMORY = 4096
 """Request ids remembered after their update ended, to tell a late result from a forged one."""
@@ -103,7 +104,7 @@ class UpdateDispatcher:
         names = sorted(self.workers)
         return names[next(self._turn) % len(names)]
 
-    def worker_changed(self, worker_id: str, device: str, alive: bool) -> list[Outgoing]:
+    def worker_changed(self, worker_id: str, device: str, alive: bool) -> list[AddressedRequest]:
         """Record a liveliness change; returns shards re-sent because of it."""
         if alive:
             self.workers[worker_id] = device
@@ -129,7 +130,7 @@ class UpdateDispatcher:
         exponent: float,
         now: float,
         image: torch.Tensor | None = None,
-    ) -> list[Outgoing]:
+    ) -> list[AddressedRequest]:
         """Split ``snapshot`` over the live workers; pixels (M, 2), observed_rgb (M, 3); ``image``
         (H, W, 3) is kept until the update completes (for kidnapping recovery).
 

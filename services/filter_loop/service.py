@@ -4,6 +4,10 @@ Every ``handle_*`` method takes the payload bytes of one received message and re
 messages to publish as ``(key, payload)`` pairs; :meth:`FilterLoop.tick` starts updates, expires
 them and emits the periodic particle cloud and status. One thread calls all of them: the filter
 state has a single owner (design section 3). Bad messages are counted by kind and dropped.
+
+The particles change only through the loop's state machine (:mod:`.loop_state`), which applies
+a deferred prediction before anything else touches them; frame conversions are in :mod:`.frames`,
+the state file in :mod:`.persistence`.
 """
 
 from __future__ import annotations
@@ -11,8 +15,6 @@ from __future__ import annotations
 import collections
 import logging
 from collections.abc import Callable
-from functools import partial
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -20,13 +22,14 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from locnerf.field.protocol import MapNormalization
-from locnerf.filter.estimate import PoseEstimate as FilterEstimate, carry_estimate
-from locnerf.filter.localizer import Localizer, SearchRegion
+from locnerf.filter.estimate import ParticleEstimate
+from locnerf.filter.localizer import Localizer, MergeOutcome, SearchRegion
 from locnerf.filter.measurement import observed_colours, sample_pixels_of_image
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, decode_image, encode
 from locnerf.messages.schemas import (
+    FilterState,
     FilterStatus,
     GlobalLocalizationCommand,
     ImageHeader,
@@ -36,20 +39,17 @@ from locnerf.messages.schemas import (
     PoseEstimate,
     UpdateResult,
 )
-from services.filter_loop.dispatcher import UnknownRequestError, UpdateDispatcher
-from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
+from services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
+from services.filter_loop.frames import FilterFrames
+from services.filter_loop.loop_state import LoopStateMachine
 from services.filter_loop.odometry_history import OdometryHistory
-from services.filter_loop.state_file import SavedPose, load_pose
-from services.filter_loop.state_writer import StateWriter
+from services.filter_loop.persistence import PosePersistence
 from services.runtime import BadMessages, RateMeter
 
 logger = logging.getLogger(__name__)
 
 Outgoing = list[tuple[str, bytes]]
-
-# Added to a restored covariance so that a fully converged (rank-deficient) one can be sampled.
-_COVARIANCE_JITTER = 1e-10
-
+"""Messages to publish: (key expression, payload bytes) pairs."""
 
 class FilterLoopConfig(BaseModel):
     """Timing and fault handling of the filter loop."""
@@ -100,7 +100,8 @@ class FilterLoop:
 
     Args:
         robot_id: key prefix.
-        localizer: the particle filter (owned from now on).
+        localizer: the particle filter (owned from now on; read it freely, its particles change
+            only through :attr:`state_machine`).
         normalization: the map's frame and scale.
         region: plausible camera positions for global localization (map units).
         config: timing and fault handling.
@@ -118,7 +119,9 @@ class FilterLoop:
     ) -> None:
         self.robot_id = robot_id
         self.localizer = localizer
-        self.normalization = normalization
+        self.state_machine = LoopStateMachine(localizer)
+        self.frames = FilterFrames(normalization, torch.tensor(config.T_body_cam, dtype=torch.float64))
+        self.persistence = PosePersistence(config.state_file, config.state_save_rate)
         self.region = region
         self.config = config
         self.clock = clock
@@ -135,35 +138,23 @@ class FilterLoop:
         self._stepped_back: list[float] = []
         self._image: tuple[ImageHeader, np.ndarray] | None = None
         self._last_particles = self._last_status = -float("inf")
-        self._state_file = Path(config.state_file) if config.state_file else None
-        self._state_writer = StateWriter(self._state_file, config.state_save_rate) if self._state_file else None
-        self._estimate: FilterEstimate | None = None
-        self._estimate_stale = False
-        self._pending_increment: torch.Tensor | None = None
-        self._prediction_pending = False
-        self.T_body_cam = torch.tensor(config.T_body_cam, dtype=torch.float64)
         self._start()
 
     # ------------------------------------------------------------------ initialisation
     def _start(self) -> None:
-        saved = load_pose(self._state_file) if self._state_file else None
+        saved = self.persistence.restore()
         if saved is not None:
-            logger.info("resuming from the saved pose of stamp %.3f (%s)", saved.stamp, self._state_file)
             self._initialize_around(saved.T_world_cam, saved.covariance)
             self.history.append(saved.stamp, saved.T_odom_body)
         elif self.config.start == "global":
-            self.localizer.initialize_uniform(self.region)
-        self._refresh_estimate()
+            self._initialize_over_map()
+
+    def _initialize_over_map(self) -> None:
+        self.state_machine.restart(lambda localizer: localizer.initialize_uniform(self.region))
 
     def _initialize_around(self, T_world_cam: torch.Tensor, covariance: torch.Tensor) -> None:
-        mean = metric_to_map(T_world_cam.double(), self.normalization)
-        cov = convert_covariance(covariance, self.normalization, to_map=True) + _COVARIANCE_JITTER * torch.eye(6, dtype=torch.float64)
-        self.localizer.initialize_gaussian(mean, cov)
-
-    def _refresh_estimate(self) -> None:
-        """Recompute the published estimate from the particles (after they were weighed or re-drawn)."""
-        self._estimate = self.localizer.estimate() if self.running else None
-        self._estimate_stale = False
+        mean, cov = self.frames.particle_distribution(T_world_cam, covariance)
+        self.state_machine.restart(lambda localizer: localizer.initialize_gaussian(mean, cov))
 
     def refresh_estimate(self) -> bool:
         """Recompute the estimate if a merge has changed the particles since; whether it did.
@@ -171,25 +162,19 @@ class FilterLoop:
         A merge only marks the estimate stale, so that the driver can publish a waiting pose
         between the merge and this pass over the particles; :meth:`handle_odometry` refreshes
         a stale estimate itself, so a pose always reflects every merged update."""
-        if not self._estimate_stale:
-            return False
-        self._refresh_estimate()
-        return True
+        return self.state_machine.refresh_estimate()
 
     def predict_pending(self) -> None:
         """Move the particles by the odometry already published as a pose (see :meth:`handle_odometry`).
 
-        The driver calls this right after publishing the pose; every other handler calls it first,
-        so the particles are always predicted before they are used."""
-        if self._prediction_pending:
-            self._prediction_pending = False
-            self.localizer.predict(self._pending_increment)
-            self._pending_increment = None
+        The driver calls this right after publishing the pose, off the pose's path; otherwise the
+        state machine does it before the particles are next used."""
+        self.state_machine.settled()
 
     @property
     def running(self) -> bool:
         """Whether the filter has particles."""
-        return self.localizer.particles is not None
+        return self.state_machine.running
 
     def _key(self, topic: keys.Topic, **fields: str) -> str:
         return keys.key(self.robot_id, topic, **fields)
@@ -203,12 +188,11 @@ class FilterLoop:
         odometry, the covariance grows by the prediction noise), so the pose costs no pass over
         the particles. The prediction itself (eq. 4 on every particle) is left pending until
         :meth:`predict_pending`, which the driver calls once the pose is out."""
-        self.predict_pending()
         try:
             message = decode(payload, Odometry)
             pose = torch.tensor(message.T_odom_body, dtype=torch.float64)
             validate_poses(pose, name="T_odom_body")
-            pose = pose @ self.T_body_cam  # T_odom_cam: the filter moves camera poses
+            pose = self.frames.camera_odometry(pose)
             if self._odometry_clock_restarted(message.stamp):
                 self.history.clear()
                 self.odometry_restarts += 1
@@ -227,11 +211,8 @@ class FilterLoop:
         self.rates["odometry"].tick()
         if not self.running:
             return []
-        self.refresh_estimate()
-        increment = None if increment is None else increment_to_map(increment, self.normalization)
-        self._estimate = carry_estimate(self._estimate, increment, self.localizer.noise_sigma(), self.localizer.noise_pivot())
-        self._pending_increment, self._prediction_pending = increment, True
-        return [self._pose_message(message.stamp)]
+        estimate = self.state_machine.carry(self.frames.map_increment(increment))
+        return [self._pose_message(message.stamp, estimate)]
 
     def _odometry_clock_restarted(self, stamp: float) -> bool:
         """Whether ``stamp`` starts a new odometry session: it lies more than ``odometry_horizon``
@@ -252,20 +233,16 @@ class FilterLoop:
             return True
         return False
 
-    def _pose_message(self, stamp: float) -> tuple[str, bytes]:
-        estimate = self._estimate
-        pose = map_to_metric(estimate.pose, self.normalization)
-        covariance = convert_covariance(estimate.covariance, self.normalization, to_map=False)
-        covariance = 0.5 * (covariance + covariance.T)
-        if self._state_writer is not None:  # fresh tensors: the writer thread never sees the filter's own
-            self._state_writer.offer(SavedPose(stamp, pose.clone(), covariance.clone(), self.history.latest_pose.clone()))
+    def _pose_message(self, stamp: float, estimate: ParticleEstimate) -> tuple[str, bytes]:
+        metric = self.frames.metric_estimate(estimate)
+        self.persistence.offer(stamp, metric.pose, metric.covariance, self.history.latest_pose)
         self.rates["pose"].tick()
         message = PoseEstimate(
             stamp=stamp,
-            T_world_cam=pose.tolist(),
-            covariance=covariance.tolist(),
+            T_world_cam=metric.pose.tolist(),
+            covariance=metric.covariance.tolist(),
             particle_count=estimate.particle_count,
-            spread=estimate.spread / self.normalization.scale,
+            spread=metric.spread,
             effective_sample_size=estimate.effective_sample_size,
             mode=estimate.stage,
             epoch=self.localizer.epoch,
@@ -295,7 +272,6 @@ class FilterLoop:
 
     def handle_result(self, payload: bytes) -> Outgoing:
         """Store a shard's result; merge when the update is complete."""
-        self.predict_pending()
         try:
             completed = self.dispatcher.receive(decode(payload, UpdateResult), self.clock())
         except DecodeError as error:
@@ -309,20 +285,15 @@ class FilterLoop:
             return []
         if completed is None or not self.running:
             return []
-        find_candidates = None
-        if completed.image is not None:
-            find_candidates = partial(self.localizer.keyframe_candidates, completed.image, completed.intrinsics)
-        report = self.localizer.merge(completed.epoch, completed.generation, completed.ids, completed.log_likelihoods, find_candidates)
-        if report.outcome == "merged":
+        report = self.state_machine.merge(completed)
+        if report.outcome is MergeOutcome.MERGED:
             self.rates["update"].tick()
             self.latencies.append(completed.latency)
-            self._estimate_stale = True
         logger.debug("update %s: ESS %.1f, %d particles, stage %s", report.outcome, report.effective_sample_size, report.particle_count, report.stage)
         return []
 
     def handle_initial_pose(self, payload: bytes) -> Outgoing:
         """Re-initialise around the commanded metric pose."""
-        self.predict_pending()
         try:
             command = decode(payload, InitialPoseCommand)
             pose = torch.tensor(command.T_world_cam, dtype=torch.float64)
@@ -335,20 +306,17 @@ class FilterLoop:
             return []
         logger.info("initial pose command: re-initialising")
         self._initialize_around(pose, torch.tensor(command.covariance, dtype=torch.float64))
-        self._refresh_estimate()
         return []
 
     def handle_global_localization(self, payload: bytes) -> Outgoing:
         """Re-initialise over the whole map."""
-        self.predict_pending()
         try:
             decode(payload, GlobalLocalizationCommand)
         except DecodeError as error:
             self.bad.record(f"command_{error.kind}", error.reason)
             return []
         logger.info("global localization command: re-initialising over the map")
-        self.localizer.initialize_uniform(self.region)
-        self._refresh_estimate()
+        self._initialize_over_map()
         return []
 
     def worker_changed(self, token_key: str, alive: bool) -> Outgoing:
@@ -361,18 +329,16 @@ class FilterLoop:
         logger.info("worker %s (%s) %s", worker_id, device, "joined" if alive else "left")
         return self._requests(self.dispatcher.worker_changed(worker_id, device, alive))
 
-    def _requests(self, outgoing: list) -> Outgoing:
-        return [(self._key(keys.UPDATE_REQUEST, worker_id=worker), encode(request)) for worker, request in outgoing]
+    def _requests(self, addressed: list[AddressedRequest]) -> Outgoing:
+        return [(self._key(keys.UPDATE_REQUEST, worker_id=worker), encode(request)) for worker, request in addressed]
 
     def close(self) -> None:
         """Stop the state writer after writing the last pose (if a state file is configured)."""
-        if self._state_writer is not None:
-            self._state_writer.close()
+        self.persistence.close()
 
     # ------------------------------------------------------------------ periodic work
     def tick(self) -> Outgoing:
         """Expire or start an update; publish particles and status when due."""
-        self.predict_pending()
         now = self.clock()
         self.dispatcher.expire(now)
         out: Outgoing = []
@@ -394,20 +360,19 @@ class FilterLoop:
         except ValueError as error:
             self.bad.record("image_too_old", str(error))
             return []
-        if carry is not None:
-            carry = increment_to_map(carry, self.normalization)
-        snapshot = self.localizer.snapshot(carry)
-        measurement = self.localizer.config.measurement
+        localizer = self.state_machine.settled()
+        snapshot = localizer.snapshot(self.frames.map_increment(carry))
+        measurement = localizer.config.measurement
         intrinsics = header.intrinsics
         image = torch.from_numpy(pixels).float() / 255.0
-        chosen = sample_pixels_of_image(image, measurement, self.localizer.generator)
+        chosen = sample_pixels_of_image(image, measurement, localizer.generator)
         colours = observed_colours(image, chosen)
-        kept = image if self.localizer.keyframes is not None else None
+        kept = image if localizer.keyframes is not None else None
         return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept))
 
     def metric_particle_poses(self) -> torch.Tensor:
         """(N, 4, 4) float64 camera poses of the particles, metric, in the map's world frame (needs particles)."""
-        return map_to_metric(self.localizer.particles.poses.double().cpu(), self.normalization)
+        return self.frames.metric_poses(self.state_machine.settled().particles.poses)
 
     def _particles_message(self) -> tuple[str, bytes]:
         poses = self.metric_particle_poses()
@@ -428,7 +393,7 @@ class FilterLoop:
             "odometry_restarts": self.odometry_restarts,
             "inbox_dropped": self.inbox_dropped,
             "images_received": self.images_received,
-            "state_save_failures": self._state_writer.failures if self._state_writer else 0,
+            "state_save_failures": self.persistence.failures,
         }
         counts |= dict(self.dispatcher.counters)
         counts |= {f"bad_{kind}": count for kind, count in self.bad.counts.items()}
@@ -438,7 +403,7 @@ class FilterLoop:
         """The current health summary."""
         return FilterStatus(
             stamp=self.history.latest_stamp or 0.0,
-            state="running" if self.running else "waiting_for_initialisation",
+            state=FilterState.RUNNING if self.running else FilterState.WAITING_FOR_INITIALISATION,
             rates_hz={name: meter.rate() for name, meter in self.rates.items()},
             update_latency_s=sum(self.latencies) / len(self.latencies) if self.latencies else None,
             in_flight=self.dispatcher.in_flight,

@@ -59,8 +59,8 @@ class FilterRos2Bridge:
         self.loop = loop
         self.config = config
         self.node = Ros2Node(bus, config.domain_id, config.node_name, config.namespace)
-        self.T_body_cam = loop.T_body_cam
-        self.T_cam_body = pose_inverse(loop.T_body_cam)
+        self.T_body_cam = loop.frames.T_body_cam
+        self.T_cam_body = pose_inverse(loop.frames.T_body_cam)
         self.pose_publisher = self.node.publisher(config.pose_topic, POSE_WITH_COVARIANCE)
         self.particles_publisher = self.node.publisher(config.particles_topic, POSE_ARRAY)
         self.tf_publisher = self.node.publisher(config.tf_topic, TF_MESSAGE) if config.publish_tf else None

@@ -2,7 +2,8 @@
 
 import torch
 
-from locnerf.filter.estimate import PoseEstimate, carry_estimate
+from locnerf.filter.annealing import AnnealingStage
+from locnerf.filter.estimate import ParticleEstimate, carry_estimate
 from locnerf.filter.initialization import gaussian_particles
 from locnerf.filter.motion import PivotNoise, propagate_poses
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
@@ -18,8 +19,8 @@ def _monte_carlo(mean: torch.Tensor, covariance: torch.Tensor, increment: torch.
     return weighted_pose_mean_and_covariance(poses, torch.full((PARTICLES,), 1.0 / PARTICLES, dtype=torch.float64), 1e-10)
 
 
-def _estimate(mean: torch.Tensor, covariance: torch.Tensor) -> PoseEstimate:
-    return PoseEstimate(mean, covariance, spread=0.0, effective_sample_size=1.0, particle_count=1, stage="COARSE")
+def _estimate(mean: torch.Tensor, covariance: torch.Tensor) -> ParticleEstimate:
+    return ParticleEstimate(mean, covariance, spread=0.0, effective_sample_size=1.0, particle_count=1, stage=AnnealingStage.COARSE)
 
 
 def _correlated_covariance() -> torch.Tensor:

@@ -40,6 +40,18 @@ def test_every_wire_type_has_an_example():
     assert {type(m).__name__ for m in EXAMPLES} | {"ImageHeader"} == set(schemas.WIRE_TYPES)
 
 
+def test_enum_fields_travel_as_their_plain_strings():
+    """Pose mode and filter state are enums in Python and the same bare strings on the wire as before they were."""
+    pose, status = EXAMPLES[2], EXAMPLES[4]
+    pose_body = msgpack.unpackb(codec.encode(pose))["body"]
+    status_body = msgpack.unpackb(codec.encode(status))["body"]
+    assert type(pose_body["mode"]) is str and pose_body["mode"] == "coarse"
+    assert type(status_body["state"]) is str and status_body["state"] == "running"
+    assert codec.decode(codec.encode(status), schemas.FilterStatus).state is schemas.FilterState.RUNNING
+    with pytest.raises(codec.DecodeError, match="invalid"):
+        codec.decode(_envelope(status_body | {"state": "sleeping"}, name="FilterStatus"), schemas.FilterStatus)
+
+
 def _header(encoding: str = "rgb8") -> schemas.ImageHeader:
     return schemas.ImageHeader(stamp=3.0, frame_id="cam", encoding=encoding, width=4, height=3, intrinsics=INTRINSICS)
 

@@ -262,7 +262,7 @@ def test_unwritable_state_file_is_counted_and_the_poses_go_on(world, tmp_path):
     harness.loop.close()
     assert len(harness.poses) == 20
     failures = harness.loop.counters()["state_save_failures"]
-    assert 1 <= failures <= 20 and harness.loop._state_writer.saved == 0
+    assert 1 <= failures <= 20 and harness.loop.persistence.writer.saved == 0
     status = decode(harness.loop.tick()[-1][1], FilterStatus)
     assert status.counters["state_save_failures"] == failures
 
