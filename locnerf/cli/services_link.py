@@ -32,6 +32,21 @@ def transport() -> ModuleType:
     return importlib.import_module("services.transport")
 
 
+def supervision() -> ModuleType:
+    """``services.supervisor``: Supervisor, write_config, free_port."""
+    return importlib.import_module("services.supervisor")
+
+
+def local_hub() -> ModuleType:
+    """``services.local_hub``: LocalHub, a listening session and the supervisor of its services."""
+    return importlib.import_module("services.local_hub")
+
+
+def runtime() -> ModuleType:
+    """``services.runtime``: load_service_config."""
+    return importlib.import_module("services.runtime")
+
+
 DEFAULT_PORT = 7447
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
 
