@@ -27,7 +27,6 @@ from pathlib import Path
 
 import psutil
 from hypothesis import HealthCheck, Phase, given, seed, settings
-
 from pydantic import BaseModel
 
 from locnerf.cli.services_link import local_hub, service_module, transport
