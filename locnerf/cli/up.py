@@ -102,7 +102,7 @@ def start_services(supervisor: Any, configs: ServiceConfigs) -> None:
 
 @dataclass
 class RunRecord:
-    """What the supervisor saw on the bus."""
+    """What `locnerf up` saw on the bus."""
 
     first_pose_at: float | None = None
     poses: int = 0
