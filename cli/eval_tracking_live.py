@@ -13,17 +13,14 @@ process records odometry, ground truth, poses and update results and scores them
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import os
-import subprocess
 import time
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from cli.up import free_port, service_commands, stop_processes, write_config_files
+from cli.up import ServiceConfigs, start_services
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_summary
@@ -31,7 +28,11 @@ from locnerf.maps.source import WORLD, open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
 from locnerf.messages.schemas import Odometry, PoseEstimate, PoseStamped, UpdateResult
-from services.transport import Inbox, TransportConfig, open_bus
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.local_hub import LocalHub
+from services.nerf_worker.__main__ import WorkerConfig
+from services.sensor_ingest.__main__ import IngestConfig
+from services.transport import Inbox
 
 logger = logging.getLogger(__name__)
 
@@ -40,24 +41,9 @@ STARTUP_TIMEOUT_S = 240.0
 SETTLE_S = 3.0  # wall seconds after the ingest's last message for the last poses and results
 
 
-def _toml_value(value: Any) -> str:
-    """A TOML literal of a JSON-like scalar or list (strings, numbers, booleans)."""
-    return json.dumps(value)
-
-
-def _toml(tables: dict[str, dict[str, Any]]) -> str:
-    """A TOML document: table "" holds the top-level keys; None values are left out (the default)."""
-    lines = []
-    for name, entries in tables.items():
-        if name:
-            lines.append(f"\n[{name}]")
-        lines += [f"{key} = {_toml_value(value)}" for key, value in entries.items() if value is not None]
-    return "\n".join(lines) + "\n"
-
-
-def scenario_table(args: argparse.Namespace, image_rate: float, vio: dict[str, float]) -> dict[str, dict[str, Any]]:
-    """The ingest's ``[scenario]`` and ``[scenario.vio]`` tables for the command's arguments."""
-    scenario = {
+def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str, float]) -> dict[str, Any]:
+    """The ingest's ``scenario`` fields (``ScenarioSourceConfig``) for the command's arguments."""
+    return {
         "sequence": args.sequence if args.sequence == WORLD else str(Path(args.sequence).resolve()),
         "split": args.split,
         "downscale": args.downscale,
@@ -65,28 +51,25 @@ def scenario_table(args: argparse.Namespace, image_rate: float, vio: dict[str, f
         "duration": args.duration,
         "image_rate": image_rate,
         "kidnap_at": args.kidnap_at,
+        "vio": vio,
     }
-    return {"scenario": scenario, "scenario.vio": vio}
 
 
-def write_configs(args: argparse.Namespace, folder: Path, image_rate: float, vio: dict[str, float], events: int) -> argparse.Namespace:
-    """Write the ingest, filter and worker TOMLs into ``folder``; the namespace ``service_commands`` expects.
+def service_configs(args: argparse.Namespace, image_rate: float, vio: dict[str, float], events: int) -> ServiceConfigs:
+    """The ingest, filter and worker configurations of the live run.
 
     The ingest produces its whole stream (``events`` events) before the clock starts, as the load
     test does, so reading or rendering frames does not load the machine under test.
     """
     map_spec = args.map if args.map == WORLD else str(Path(args.map).resolve())
     localizer = str(Path(args.config).resolve()) if args.config is not None else args.preset
-    files = {
-        "ingest": _toml({"": {"source": "scenario", "prefetch_events": events, "prefill": True}} | scenario_table(args, image_rate, vio)),
-        "filter": _toml({"": {"map": map_spec}}),
-        "worker": _toml({"": {"map": map_spec}}),
-    }
-    paths = write_config_files(folder, files)
-    return argparse.Namespace(
-        robot_id=ROBOT_ID, device=args.device, workers=args.workers, localizer=localizer, seed=args.seed,
-        filter_config=paths["filter"], worker_config=paths["worker"], ingest_config=paths["ingest"], duration=0.0, speed=1.0, stream_margin=0.0,
+    common = {"robot_id": ROBOT_ID, "seed": args.seed}
+    ingest = IngestConfig(
+        source="scenario", prefetch_events=events, prefill=True, speed=1.0, scenario=scenario_settings(args, image_rate, vio), **common
     )
+    filter_config = FilterProcessConfig(map=map_spec, device=args.device, localizer=localizer, **common)
+    worker = WorkerConfig(map=map_spec, device=args.device, robot_id=ROBOT_ID)
+    return ServiceConfigs(ingest, filter_config, worker, args.workers)
 
 
 def _observe(observed: LiveObservations, kind: str, payload: bytes, arrival: float) -> None:
@@ -103,15 +86,14 @@ def _observe(observed: LiveObservations, kind: str, payload: bytes, arrival: flo
         observed.updates[decode(payload, UpdateResult).request_id] = arrival
 
 
-def record_run(args: argparse.Namespace, namespace: argparse.Namespace, folder: Path, sensor_seconds: float) -> LiveObservations:
+def record_run(configs: ServiceConfigs, folder: Path, sensor_seconds: float) -> LiveObservations:
     """Start the services, record the bus until the ingest has streamed everything, stop them.
 
     Raises:
-        RuntimeError: a service failed, or no pose within ``STARTUP_TIMEOUT_S``.
+        RuntimeError: a service failed, or the run took longer than ``STARTUP_TIMEOUT_S`` plus
+            four times ``sensor_seconds``.
     """
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = open_bus(TransportConfig(listen=(endpoint,)))
-    environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
+    hub = LocalHub(folder)
     inbox = Inbox(capacity=1 << 17)
     topics = {
         "odometry": keys.key(ROBOT_ID, keys.ODOMETRY),
@@ -120,27 +102,22 @@ def record_run(args: argparse.Namespace, namespace: argparse.Namespace, folder: 
         "result": keys.key(ROBOT_ID, keys.UPDATE_RESULT),
     }
     # Callbacks only stamp and enqueue; decoding happens after the run, off the measured CPU.
-    handles = [bus.subscribe(t, lambda _k, p, kind=kind: inbox.put((kind, p, time.monotonic()))) for kind, t in topics.items()]
-    processes: dict[str, subprocess.Popen] = {}
+    for kind, topic in topics.items():
+        hub.subscribe(topic, lambda _k, p, kind=kind: inbox.put((kind, p, time.monotonic())))
     observed = LiveObservations()
     try:
-        for name, command in service_commands(namespace).items():
-            with open(folder / f"{name}.log", "w") as log:
-                processes[name] = subprocess.Popen(command, env=environment, stdout=log, stderr=subprocess.STDOUT)
+        start_services(hub.supervisor, configs)
         give_up = time.monotonic() + STARTUP_TIMEOUT_S + sensor_seconds * 4
-        while processes["ingest"].poll() is None:
-            failed = [name for name, p in processes.items() if p.poll() is not None and name != "ingest"]
-            if failed or time.monotonic() > give_up:
-                raise RuntimeError(f"service(s) {failed} exited early or the run timed out: see the logs in {folder}")
+        while True:
+            hub.supervisor.check_running(allowed_to_exit=("ingest",))
+            if "ingest" in hub.supervisor.exited():
+                break
+            if time.monotonic() > give_up:
+                raise RuntimeError(f"the run took more than {STARTUP_TIMEOUT_S + sensor_seconds * 4:.0f} s: see the logs in {folder}")
             time.sleep(0.2)
-        if processes["ingest"].returncode != 0:
-            raise RuntimeError(f"the ingest exited with {processes['ingest'].returncode}: see {folder / 'ingest.log'}")
         time.sleep(SETTLE_S)
     finally:
-        stop_processes(processes)
-        for handle in handles:
-            handle.close()
-        bus.close()
+        hub.close()
     while (item := inbox.get(timeout=0.0)) is not None:
         _observe(observed, *item)
     if inbox.dropped:
@@ -157,7 +134,6 @@ def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate:
         raise LocnerfInputError(f"--workers {args.workers}: expected at least 1")
     normalization = open_map(args.map, torch.device("cpu")).normalization
     events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
-    namespace = write_configs(args, args.logs, image_rate, vio, events)
-    observed = record_run(args, namespace, args.logs, sensor_seconds)
+    observed = record_run(service_configs(args, image_rate, vio, events), args.logs, sensor_seconds)
     report = live_summary(observed, normalization, args.kidnap_at, criterion)
     return report | {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}

@@ -20,9 +20,6 @@ import argparse
 import collections
 import json
 import logging
-import os
-import subprocess
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -30,14 +27,18 @@ from pathlib import Path
 
 import psutil
 from hypothesis import HealthCheck, Phase, given, seed, settings
+from pydantic import BaseModel
 
-from cli.up import free_port, stop_processes, write_config_files
-from locnerf.errors import LocnerfInputError
 from locnerf.eval.fuzz_payloads import ACCEPTED, TARGETS, FuzzTarget, Hostile
 from locnerf.messages import keys
+from locnerf.errors import LocnerfInputError
 from locnerf.messages.codec import DecodeError, decode
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.local_hub import LocalHub
+from services.nerf_worker.__main__ import WorkerConfig
+from services.sensor_ingest.__main__ import IngestConfig
+from services.transport import TransportConfig
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, ServiceStatus
-from services.transport import TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
 
@@ -185,34 +186,33 @@ def compare_counts(target: FuzzTarget, sent: collections.Counter[tuple[str, str]
     }
 
 
-def _write_configs(folder: Path, robot: str) -> dict[str, Path]:
-    texts = {
-        "filter": f'robot_id = "{robot}"\nmap = "world"\ndevice = "cpu"\n',
-        "worker": f'robot_id = "{robot}"\nmap = "world"\ndevice = "cpu"\nworker_id = "fuzzed"\n',
-        # Odometry only (int(duration · camera_rate) = 0 frames): no image of the stream competes with the hostile ones.
-        "ingest": f'robot_id = "{robot}"\ningest_id = "stream"\n[world]\ncamera_rate = 1e-9\nduration = 86400.0\n',
-        "ingest_waiting": f'robot_id = "{robot}"\ningest_id = "{WAITING_INGEST}"\nwait_for_workers = 1000\nwait_timeout = 86400.0\n',
+def service_configs(robot: str) -> dict[str, tuple[str, BaseModel]]:
+    """The fuzzed processes by log name: (service, configuration).
+
+    The streaming ingest sends odometry only (``int(duration · camera_rate)`` = 0 frames), so no
+    image of the stream competes with the hostile ones; the waiting ingest waits for a thousand
+    workers for a day, subscribed to the filter status all along.
+    """
+    on_cpu = {"robot_id": robot, "map": "world", "device": "cpu"}
+    return {
+        "filter": ("filter", FilterProcessConfig(**on_cpu)),
+        "worker": ("worker", WorkerConfig(worker_id="fuzzed", **on_cpu)),
+        "ingest": ("ingest", IngestConfig(robot_id=robot, ingest_id="stream", world={"camera_rate": 1e-9, "duration": 86400.0})),
+        "ingest_waiting": ("ingest", IngestConfig(robot_id=robot, ingest_id=WAITING_INGEST, wait_for_workers=1000, wait_timeout=86400.0)),
     }
-    return write_config_files(folder, texts)
 
 
-def _check_alive(processes: dict[str, subprocess.Popen], folder: Path) -> None:
-    """Raise RuntimeError naming the services that exited."""
-    dead = [name for name, p in processes.items() if p.poll() is not None]
-    if dead:
-        raise RuntimeError(f"service(s) {dead} exited: see the logs in {folder}")
-
-
-def _wait(condition, timeout: float, what: str, processes: dict[str, subprocess.Popen], folder: Path) -> None:
+def _wait(condition, timeout: float, what: str, supervisor) -> None:
+    """Poll ``condition`` while every process of ``supervisor`` runs; RuntimeError after ``timeout`` seconds."""
     deadline = time.monotonic() + timeout
     while not condition():
-        _check_alive(processes, folder)
+        supervisor.check_running()
         if time.monotonic() > deadline:
-            raise RuntimeError(f"timed out after {timeout:.0f} s waiting for {what}: see the logs in {folder}")
+            raise RuntimeError(f"timed out after {timeout:.0f} s waiting for {what}: see the logs in {supervisor.logs}")
         time.sleep(0.1)
 
 
-def _settle(observations: Observations, target: FuzzTarget, total: int, before: dict[str, int], processes, folder) -> dict[str, int]:
+def _settle(observations: Observations, target: FuzzTarget, total: int, before: dict[str, int], supervisor) -> dict[str, int]:
     """Counters once they account for ``total`` payloads, or once two statuses in a row did not change."""
     interesting = lambda c: sum(n for k, n in c.items() if k.startswith("bad_") and k != "bad_messages") + sum(c.get(k, 0) for k in target.drop_counters)  # noqa: E731
     deadline = time.monotonic() + SETTLE_TIMEOUT_S
@@ -225,7 +225,7 @@ def _settle(observations: Observations, target: FuzzTarget, total: int, before: 
             last, unchanged_since = counters, time.monotonic()
         elif time.monotonic() - unchanged_since > 2.5:
             return counters
-        _check_alive(processes, folder)
+        supervisor.check_running()
         time.sleep(0.2)
     return observations.counters(target.service)
 
@@ -240,45 +240,33 @@ def pose_stream(poses: list[tuple[float, float]], start: float, end: float) -> d
 def run_fuzz(args: argparse.Namespace) -> dict[str, object]:
     """Start the services, fuzz every target, return the report (see the module docstring)."""
     robot = "fuzz"
-    folder: Path = args.out
-    paths = _write_configs(folder, robot)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = open_bus(TransportConfig(listen=(endpoint,), block_when_congested=True))
-    environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
+    transport_config = TransportConfig(block_when_congested=True)
+    hub = LocalHub(args.out, transport=transport_config)
     observations = Observations()
-    handles = [
-        bus.subscribe(keys.key(robot, keys.STATUS), lambda _k, p: observations.on_status(p)),
-        bus.subscribe(keys.key(robot, keys.WORKER_STATUS, worker_id="*"), lambda _k, p: observations.on_service(p)),
-        bus.subscribe(keys.key(robot, keys.INGEST_STATUS, ingest_id="*"), lambda _k, p: observations.on_service(p)),
-        bus.subscribe(keys.key(robot, keys.POSE), lambda _k, p: observations.on_pose(p)),
-    ]
-    base = [sys.executable, "-m", "cli.main", "-v", "run"]
-    commands = {
-        "filter": base + ["filter", "--config", str(paths["filter"])],
-        "worker": base + ["worker", "--config", str(paths["worker"])],
-        "ingest": base + ["ingest", "--config", str(paths["ingest"])],
-        "ingest_waiting": base + ["ingest", "--config", str(paths["ingest_waiting"])],
-    }
+    hub.subscribe(keys.key(robot, keys.STATUS), lambda _k, p: observations.on_status(p))
+    hub.subscribe(keys.key(robot, keys.WORKER_STATUS, worker_id="*"), lambda _k, p: observations.on_service(p))
+    hub.subscribe(keys.key(robot, keys.INGEST_STATUS, ingest_id="*"), lambda _k, p: observations.on_service(p))
+    hub.subscribe(keys.key(robot, keys.POSE), lambda _k, p: observations.on_pose(p))
     targets = [t for t in TARGETS if not args.only or t.topic.suffix in args.only.split(",")]
-    processes: dict[str, subprocess.Popen] = {}
+    supervisor = hub.supervisor
     results = []
     try:
-        for name, command in commands.items():
-            with open(folder / f"{name}.log", "w") as log:
-                processes[name] = subprocess.Popen(command, env=environment, stdout=log, stderr=subprocess.STDOUT)
+        for name, (service, config) in service_configs(robot).items():
+            supervisor.start_service(name, service, config)
+
         def ready() -> bool:
             with observations.lock:
                 seen = bool(observations.poses) and "fuzzed" in observations.filter_workers
             return seen and all(observations.counters(s) for s in ("worker", "ingest"))
 
-        _wait(ready, STARTUP_TIMEOUT_S, "the first pose and the statuses of filter, worker and waiting ingest", processes, folder)
-        watch = MemoryWatch({name: p.pid for name, p in processes.items()})
+        _wait(ready, STARTUP_TIMEOUT_S, "the first pose and the statuses of filter, worker and waiting ingest", supervisor)
+        watch = MemoryWatch({name: p.pid for name, p in supervisor.processes.items()})
         started = time.monotonic()
         for target in targets:
             before = observations.counters(target.service)
             key = target.key(robot)
-            sent = publish_payloads(target, args.payloads, args.rate, args.seed, lambda payload, key=key: bus.publish(key, payload))
-            after = _settle(observations, target, sum(sent.values()), before, processes, folder)
+            sent = publish_payloads(target, args.payloads, args.rate, args.seed, lambda payload, key=key: hub.bus.publish(key, payload))
+            after = _settle(observations, target, sum(sent.values()), before, supervisor)
             results.append(
                 {"service": target.service, "key": target.topic.suffix, "by_damage": {f"{d} -> {k}": n for (d, k), n in sorted(sent.items())}}
                 | compare_counts(target, sent, before, after)
@@ -286,12 +274,10 @@ def run_fuzz(args: argparse.Namespace) -> dict[str, object]:
             logger.info("%s %s: %s", target.service, target.topic.suffix, {k: results[-1][k] for k in ("sent", "counted", "dropped_by_design", "agree")})
         ended = time.monotonic()
         memory = watch.stop()
-        alive = {name: p.poll() is None for name, p in processes.items()}
+        exited = supervisor.exited()
+        alive = {name: name not in exited for name in supervisor.processes}
     finally:
-        stop_processes(processes)
-        for handle in handles:
-            handle.close()
-        bus.close()
+        hub.close()
     with observations.lock:
         stream = pose_stream(observations.poses, started, ended)
     rate_ok = abs(stream["pose_rate_hz"] - ODOMETRY_RATE_HZ) <= args.rate_tolerance * ODOMETRY_RATE_HZ and stream["odometry_stamps_without_pose"] == 0

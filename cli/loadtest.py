@@ -17,20 +17,25 @@ import itertools
 import math
 import json
 import os
-import subprocess
 import time
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from cli.flags import from_flags
-from cli.up import free_port, service_commands, stop_processes, write_config_files
+from cli.up import ServiceConfigs, start_services
+from locnerf.config import preset
 from locnerf.eval.loadtest_process import ProcessSample, process_usage, read_process_sample
 from locnerf.eval.loadtest_recorder import LoadRecorder
 from locnerf.eval.loadtest_sweep import plot_sweep, write_sweep_csv
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError
-from services.transport import Inbox, TransportConfig, open_bus
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.local_hub import LocalHub
+from services.nerf_worker.__main__ import WorkerConfig
+from services.sensor_ingest.__main__ import IngestConfig
+from services.supervisor import write_config
+from services.transport import Inbox
 
 FIRST_POSE_TIMEOUT_S = 180.0
 
@@ -94,27 +99,29 @@ OVERLOAD_FRAMES = 30
 _STREAM_MARGIN_S = 5.0
 
 
-def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
-    """Write the localizer, ingest, filter and worker TOMLs of ``case`` into ``folder``; the
-    namespace ``cli.up.service_commands`` expects."""
+def service_configs(case: LoadCaseConfig, folder: Path) -> ServiceConfigs:
+    """The ingest, filter and worker configurations of ``case``; its localizer is written to ``folder/localizer.toml``.
+
+    The ingest streams the world for warm-up, window, settle time and a margin, at the case's input
+    rates; a held-load case reuses ``OVERLOAD_FRAMES`` frames, any other renders its whole stream
+    before the first release unless ``case.prerender`` is off.
+    """
     stream_seconds = case.warmup + case.duration + case.settle + _STREAM_MARGIN_S
     # World stream events: a ground truth and an odometry message per odometry stamp, an image per frame.
     events = math.ceil(stream_seconds * (2 * case.input_odometry_rate + case.input_camera_rate)) + 8
-    prefetch = f"prefetch_events = {events}\nprefill = true\n" if case.prerender and not case.overloaded else ""
-    reuse = f"distinct_frames = {OVERLOAD_FRAMES}\n" if case.overloaded else ""
-    files = {
-        "localizer": f'preset = "llff"\nparticles = {case.particles}\n\n[measurement]\npixels = {case.pixels}\n\n'
-        f"[annealing]\nreduced_particles = {case.particles}\n",
-        "ingest": f'source = "world"\n{prefetch}\n[world]\nodometry_rate = {case.input_odometry_rate}\n'
-        f"camera_rate = {case.input_camera_rate}\n{reuse}",
-        "filter": f"map = {json.dumps(case.map)}\n",
-        "worker": f"map = {json.dumps(case.map)}\n",
-    }
-    paths = write_config_files(folder, files)
-    return argparse.Namespace(
-        robot_id=case.robot_id, device=case.device, workers=case.workers, localizer=str(paths["localizer"]), seed=case.seed,
-        filter_config=paths["filter"], worker_config=paths["worker"], ingest_config=paths["ingest"], duration=stream_seconds, speed=1.0, stream_margin=0.0,
+    localizer = preset("llff", particles=case.particles, measurement={"pixels": case.pixels}, annealing={"reduced_particles": case.particles})
+    localizer_file = write_config(folder / "localizer.toml", localizer)
+    world = {"odometry_rate": case.input_odometry_rate, "camera_rate": case.input_camera_rate, "duration": stream_seconds}
+    if case.overloaded:
+        world["distinct_frames"] = OVERLOAD_FRAMES
+    prefill = case.prerender and not case.overloaded
+    common = {"robot_id": case.robot_id, "seed": case.seed}
+    ingest = IngestConfig(
+        source="world", world=world, speed=1.0, **({"prefetch_events": events, "prefill": True} if prefill else {}), **common
     )
+    filter_config = FilterProcessConfig(map=case.map, device=case.device, localizer=str(localizer_file), **common)
+    worker = WorkerConfig(map=case.map, device=case.device, robot_id=case.robot_id)
+    return ServiceConfigs(ingest, filter_config, worker, case.workers)
 
 
 def _sample_all(processes: dict[str, int]) -> dict[str, ProcessSample]:
@@ -140,9 +147,8 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
     Raises:
         RuntimeError: no pose within ``FIRST_POSE_TIMEOUT_S`` or a service exited early.
     """
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = open_bus(TransportConfig(listen=(endpoint,)))
-    environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
+    configs = service_configs(case, folder)
+    hub = LocalHub(folder)
     inbox = Inbox(capacity=65536)
     topics = {
         "odometry": keys.key(case.robot_id, keys.ODOMETRY),
@@ -154,15 +160,9 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
     }
     if case.overloaded:
         del topics["image"]
-    handles = [bus.subscribe(t, lambda _k, p, kind=kind: inbox.put((kind, p, time.monotonic()))) for kind, t in topics.items()]
+    for kind, topic in topics.items():
+        hub.subscribe(topic, lambda _k, p, kind=kind: inbox.put((kind, p, time.monotonic())))
     recorder = LoadRecorder(odometry_rate=case.input_odometry_rate, camera_rate=case.input_camera_rate)
-    processes: dict[str, subprocess.Popen] = {}
-    namespace = _write_configs(case, folder)
-
-    def check_processes() -> None:
-        failed = [name for name, p in processes.items() if p.poll() is not None]
-        if failed:
-            raise RuntimeError(f"service(s) {failed} exited early: see the logs in {folder}")
 
     def observe(item: tuple[str, bytes, float]) -> None:
         try:
@@ -175,7 +175,7 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
             item = inbox.get(timeout=0.05)
             if item is not None:
                 observe(item)
-            check_processes()
+            hub.supervisor.check_running()
 
     memory: list[dict[str, ProcessSample]] = []
 
@@ -188,21 +188,19 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
                 drain_until(min(deadline, time.monotonic() + 0.1))
             else:
                 time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
-            check_processes()
+            hub.supervisor.check_running()
             if memory and time.monotonic() - next(iter(memory[-1].values())).at >= case.memory_period:
                 memory.append(_sample_all(pids))
 
     try:
-        for name, command in service_commands(namespace).items():
-            with open(folder / f"{name}.log", "w") as log:
-                processes[name] = subprocess.Popen(command, env=environment, stdout=log, stderr=subprocess.STDOUT)
+        start_services(hub.supervisor, configs)
         give_up = time.monotonic() + FIRST_POSE_TIMEOUT_S
         while not recorder.poses:
             if time.monotonic() > give_up:
                 raise RuntimeError(f"no pose within {FIRST_POSE_TIMEOUT_S} s: see the logs in {folder}")
             drain_until(time.monotonic() + 0.2)
         wait_until(time.monotonic() + case.warmup)
-        pids = {name: p.pid for name, p in processes.items()} | {"loadtest": os.getpid()}
+        pids = {name: p.pid for name, p in hub.supervisor.processes.items()} | {"loadtest": os.getpid()}
         start, before = time.monotonic(), _sample_all(pids)
         memory.append(before)
         wait_until(start + case.duration)
@@ -211,10 +209,7 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
         window_memory = list(memory)
         wait_until(end + case.settle)
     finally:
-        stop_processes(processes)
-        for handle in handles:
-            handle.close()
-        bus.close()
+        hub.close()
     while (item := inbox.get(timeout=0.0)) is not None:
         observe(item)
     report = recorder.report(start, end, observer_drops=inbox.dropped)

@@ -3,37 +3,49 @@
 This process listens on a loopback endpoint (``--port``, 7447 by default, so that ``locnerf echo
 pose`` finds it) and every service connects to it in peer mode; they then find one another by
 gossip and talk directly. Ctrl-C stops everything. With ``--duration S`` it stops S seconds after
-the first pose and prints a summary (``--json`` for machine-readable output).
+the first pose, with ``--until-updates N`` once the filter has merged N updates, and prints a
+summary (``--json`` for machine-readable output). The services are ``python -m services.<name>``
+processes under a :class:`services.supervisor.Supervisor`, each reading its configuration (the
+``--*-config`` file with the flags applied) from ``<logs>/<name>.toml``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
-import socket
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
 
 from cli.bus_client import DEFAULT_PORT
 from cli.monitor import GroundTruthMatcher, PoseError, pose_line
 from locnerf.errors import LocnerfInputError
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
-from locnerf.messages.schemas import FilterStatus, PoseEstimate, PoseStamped
-from services.transport import Inbox, TransportConfig, open_bus
+from locnerf.messages.schemas import FilterStatus, Odometry, PoseEstimate, PoseStamped
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.local_hub import LocalHub
+from services.nerf_worker.__main__ import WorkerConfig
+from services.sensor_ingest.__main__ import IngestConfig
+from services.runtime import load_service_config
+from services.transport import Inbox
 
 STARTUP_TIMEOUT_S = 180.0
-STOP_TIMEOUT_S = 15.0
+STREAM_MARGIN_S = 60.0
+"""Sensor seconds the ingest streams beyond ``--duration`` (stretched by ``--speed``)."""
+ENDLESS_STREAM_S = 24 * 3600.0
+"""Sensor seconds the ingest streams without ``--duration``."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The arguments of ``locnerf up``."""
-    parser.add_argument("--duration", type=float, default=0.0, help="stop this many seconds after the first pose (0: until Ctrl-C)")
+    parser.add_argument("--duration", type=float, default=0.0, help="stop this many seconds after the first pose (0: no time limit)")
+    parser.add_argument("--until-updates", type=int, default=0, help="stop once the filter has merged this many updates (0: no limit)")
     parser.add_argument("--json", action="store_true", help="print only a JSON summary at the end")
     parser.add_argument("--workers", type=int, default=1, help="NeRF worker processes")
     parser.add_argument("--speed", type=float, default=1.0, help="sensor seconds per wall second of the stream")
@@ -47,48 +59,77 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--worker-config", type=Path, help="TOML for the workers (WorkerConfig)")
     parser.add_argument("--logs", type=Path, default=Path("out/up/logs"), help="folder for the services' logs")
     parser.add_argument("--plot", type=Path, help="write a PNG of trajectory and error here at the end")
-    parser.set_defaults(func=run, stream_margin=60.0)
+    parser.set_defaults(func=run)
 
 
-def free_port() -> int:
-    """A currently free TCP port on 127.0.0.1."""
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
+@dataclass(frozen=True)
+class ServiceConfigs:
+    """The configurations of an up-style run: one ingest, one filter, ``workers`` NeRF workers.
+
+    Each is the pydantic model of its process (``IngestConfig``, ``FilterProcessConfig``,
+    ``WorkerConfig``); the workers share ``worker`` and get the ids ``worker0``, ``worker1``, ...
+    """
+
+    ingest: BaseModel
+    filter: BaseModel
+    worker: BaseModel
+    workers: int
 
 
-def service_commands(args: argparse.Namespace) -> dict[str, list[str]]:
-    """Command lines of every service process, keyed by a log name.
+def with_stream_length(ingest: BaseModel, seconds: float) -> BaseModel:
+    """``ingest`` (an ``IngestConfig``) with a world stream of ``seconds`` sensor seconds."""
+    world = type(ingest.world).model_validate(ingest.world.model_dump() | {"duration": seconds})
+    return ingest.model_copy(update={"world": world})
 
-    The ingest streams ``duration · speed + stream_margin`` sensor seconds (``locnerf up`` keeps a
-    minute beyond its run; the load test passes the exact length it measures)."""
-    base = [sys.executable, "-m", "cli.main", "-v", "run"]
-    robot = ["--robot-id", args.robot_id]
-    worker = base + ["worker", *robot, "--device", args.device] + (["--config", str(args.worker_config)] if args.worker_config else [])
-    commands = {f"worker{i}": worker + ["--worker-id", f"worker{i}"] for i in range(args.workers)}
-    commands["filter"] = base + ["filter", *robot, "--device", args.device, "--localizer", args.localizer, "--seed", str(args.seed)] + (
-        ["--config", str(args.filter_config)] if args.filter_config else []
+
+def up_configs(args: argparse.Namespace) -> ServiceConfigs:
+    """The configurations of ``locnerf up``: the ``--*-config`` files (or the defaults) with the flags applied.
+
+    The ingest streams ``duration · speed + STREAM_MARGIN_S`` sensor seconds (``ENDLESS_STREAM_S`` without ``--duration``).
+    """
+    load = load_service_config
+    robot_device = {"robot_id": args.robot_id, "device": args.device}
+    worker = load(WorkerConfig, args.worker_config, robot_device)
+    filter_config = load(
+        FilterProcessConfig, args.filter_config, robot_device | {"localizer": args.localizer, "seed": args.seed}
     )
-    stream_seconds = args.duration * args.speed + args.stream_margin if args.duration > 0 else 24 * 3600.0
-    commands["ingest"] = base + [
-        "ingest", *robot, "--speed", str(args.speed), "--seed", str(args.seed), "--wait-for-workers", str(args.workers),
-        "--duration", str(stream_seconds),
-    ] + (["--config", str(args.ingest_config)] if args.ingest_config else [])
-    return commands
+    ingest = load(IngestConfig, args.ingest_config, {"robot_id": args.robot_id, "speed": args.speed, "seed": args.seed})
+    stream_seconds = args.duration * args.speed + STREAM_MARGIN_S if args.duration > 0 else ENDLESS_STREAM_S
+    return ServiceConfigs(with_stream_length(ingest, stream_seconds), filter_config, worker, args.workers)
+
+
+def start_services(supervisor: Any, configs: ServiceConfigs) -> None:
+    """Start the workers, the filter and the ingest (which waits until the filter lists every worker)
+    under ``supervisor`` (a ``services.supervisor.Supervisor``); their logs are named worker<i>, filter, ingest."""
+    for index in range(configs.workers):
+        supervisor.start_service(f"worker{index}", "worker", configs.worker.model_copy(update={"worker_id": f"worker{index}"}))
+    supervisor.start_service("filter", "filter", configs.filter)
+    supervisor.start_service("ingest", "ingest", configs.ingest.model_copy(update={"wait_for_workers": configs.workers}))
 
 
 @dataclass
 class RunRecord:
-    """What the supervisor saw on the bus."""
+    """What `locnerf up` saw on the bus."""
 
     first_pose_at: float | None = None
     poses: int = 0
+    pose_stamps: set[float] = field(default_factory=set)
+    odometry_stamps: set[float] = field(default_factory=set)
     errors: list[PoseError] = field(default_factory=list)
     positions: list[tuple[float, float, float]] = field(default_factory=list)
     truth_positions: list[tuple[float, float, float]] = field(default_factory=list)
     status_first: FilterStatus | None = None
     status_last: FilterStatus | None = None
     last_pose: PoseEstimate | None = None
+
+
+def odometry_without_pose(record: RunRecord) -> int:
+    """Odometry stamps between the first and the last pose that no pose answered (the filter
+    publishes one pose per odometry message)."""
+    if not record.pose_stamps:
+        return 0
+    first, last = min(record.pose_stamps), max(record.pose_stamps)
+    return sum(1 for stamp in record.odometry_stamps if first <= stamp <= last and stamp not in record.pose_stamps)
 
 
 def summary(record: RunRecord, window: float) -> dict[str, object]:
@@ -98,6 +139,8 @@ def summary(record: RunRecord, window: float) -> dict[str, object]:
     merged_in_window = counters.get("updates_merged", 0) - (first.counters.get("updates_merged", 0) if first else 0)
     result: dict[str, object] = {
         "duration_s": round(window, 3),
+        "poses": record.poses,
+        "odometry_without_pose": odometry_without_pose(record),
         "pose_rate_hz": round(record.poses / window, 3) if window > 0 else 0.0,
         "update_hz": round(merged_in_window / window, 3) if window > 0 else 0.0,
         "updates_merged": counters.get("updates_merged", 0),
@@ -142,31 +185,10 @@ def plot_run(record: RunRecord, path: Path) -> Path:
     return path
 
 
-def write_config_files(folder: Path, texts: dict[str, str]) -> dict[str, Path]:
-    """Write each service's TOML text to ``folder/<name>.toml``; the paths by name."""
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = {name: folder / f"{name}.toml" for name in texts}
-    for name, text in texts.items():
-        paths[name].write_text(text)
-    return paths
-
-
-def stop_processes(processes: dict[str, subprocess.Popen]) -> None:
-    """SIGINT every child, then wait; SIGKILL the ones still running after the timeout."""
-    for process in processes.values():
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-    deadline = time.monotonic() + STOP_TIMEOUT_S
-    for process in processes.values():
-        try:
-            process.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-
-
 def _observe(record: RunRecord, matcher: GroundTruthMatcher, kind: str, payload: bytes, quiet: bool) -> None:
-    if kind == "truth":
+    if kind == "odometry":
+        record.odometry_stamps.add(decode(payload, Odometry).stamp)
+    elif kind == "truth":
         truth = decode(payload, PoseStamped)
         matcher.add_truth(truth)
         record.truth_positions.append(tuple(row[3] for row in truth.T_world_cam[:3]))
@@ -179,6 +201,7 @@ def _observe(record: RunRecord, matcher: GroundTruthMatcher, kind: str, payload:
         if record.first_pose_at is None:
             record.first_pose_at = time.monotonic()
         record.poses += 1
+        record.pose_stamps.add(estimate.stamp)
         record.last_pose = estimate
         record.positions.append(tuple(row[3] for row in estimate.T_world_cam[:3]))
         error = matcher.error(estimate)
@@ -199,27 +222,35 @@ def _interrupt_on_signals() -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
+def _finished(record: RunRecord, args: argparse.Namespace, now: float) -> bool:
+    """Whether ``--duration`` has passed since the first pose or ``--until-updates`` updates were merged."""
+    if record.first_pose_at is None:
+        return False
+    if args.duration > 0 and now - record.first_pose_at >= args.duration:
+        return True
+    merged = record.status_last.counters.get("updates_merged", 0) if record.status_last else 0
+    return args.until_updates > 0 and merged >= args.until_updates
+
+
 def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise LocnerfInputError(f"--workers {args.workers}: expected at least 1")
-    endpoint = f"tcp/127.0.0.1:{args.port or free_port()}"
-    bus = open_bus(TransportConfig(listen=(endpoint,)))
-    environment = os.environ | {"LOCNERF_ZENOH_MODE": "peer", "LOCNERF_ZENOH_CONNECT": endpoint, "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0"}
+    if args.until_updates < 0:
+        raise LocnerfInputError(f"--until-updates {args.until_updates}: expected 0 (no limit) or more")
+    configs = up_configs(args)
+    hub = LocalHub(args.logs, port=args.port)
     inbox = Inbox(capacity=4096)
-    topics = {"truth": keys.GROUND_TRUTH, "status": keys.STATUS, "pose": keys.POSE}
-    handles = [bus.subscribe(keys.key(args.robot_id, t), lambda _k, p, kind=kind: inbox.put((kind, p))) for kind, t in topics.items()]
-    args.logs.mkdir(parents=True, exist_ok=True)
-    processes: dict[str, subprocess.Popen] = {}
+    topics = {"odometry": keys.ODOMETRY, "truth": keys.GROUND_TRUTH, "status": keys.STATUS, "pose": keys.POSE}
+    for kind, topic in topics.items():
+        hub.subscribe(keys.key(args.robot_id, topic), lambda _k, p, kind=kind: inbox.put((kind, p)))
     record, matcher = RunRecord(), GroundTruthMatcher()
     if not args.json:
-        print(f"services connect to {endpoint}; logs in {args.logs}; Ctrl-C stops", flush=True)
+        print(f"services connect to {hub.endpoint}; logs in {args.logs}; Ctrl-C stops", flush=True)
     started = time.monotonic()
     exit_code = 0
     _interrupt_on_signals()
     try:
-        for name, command in service_commands(args).items():
-            with open(args.logs / f"{name}.log", "w") as log:
-                processes[name] = subprocess.Popen(command, env=environment, stdout=log, stderr=subprocess.STDOUT)
+        start_services(hub.supervisor, configs)
         while True:
             item = inbox.get(timeout=0.1)
             if item is not None:
@@ -232,21 +263,18 @@ def run(args: argparse.Namespace) -> int:
                 print(f"no pose within {STARTUP_TIMEOUT_S} s: see the logs in {args.logs}", file=sys.stderr)
                 exit_code = 1
                 break
-            if args.duration > 0 and record.first_pose_at is not None and now - record.first_pose_at >= args.duration:
+            if _finished(record, args, now):
                 break
-            failed = [name for name, p in processes.items() if p.poll() not in (None, 0)]
+            failed = {name: code for name, code in hub.supervisor.exited().items() if code != 0}
             if failed:
-                print(f"service(s) {failed} exited with an error: see {args.logs}", file=sys.stderr)
+                print(f"service(s) exited with an error {failed}: see {args.logs}", file=sys.stderr)
                 exit_code = 1
                 break
     except KeyboardInterrupt:
         pass
     finally:
         window = time.monotonic() - record.first_pose_at if record.first_pose_at is not None else 0.0
-        stop_processes(processes)
-        for handle in handles:
-            handle.close()
-        bus.close()
+        hub.close()
     result = summary(record, window)
     if args.plot is not None and record.errors:
         result["plot"] = str(plot_run(record, args.plot))

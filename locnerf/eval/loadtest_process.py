@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,8 +28,8 @@ class ProcessSample:
     threads: int
 
 
-def read_process_sample(pid: int, proc_root: Path = Path("/proc")) -> ProcessSample:
-    """Read ``pid``'s CPU time and memory now.
+def read_process_sample(pid: int, proc_root: Path = Path("/proc"), clock: Callable[[], float] = time.monotonic) -> ProcessSample:
+    """Read ``pid``'s CPU time and memory now; ``clock`` (monotonic seconds) stamps the sample.
 
     Raises:
         ProcessLookupError: the process does not exist (any more).
@@ -49,7 +50,7 @@ def read_process_sample(pid: int, proc_root: Path = Path("/proc")) -> ProcessSam
 
     return ProcessSample(
         pid=pid,
-        at=time.monotonic(),
+        at=clock(),
         cpu_seconds=(user_ticks + system_ticks) / CLOCK_TICKS_PER_SECOND,
         rss_mb=kilobytes("VmRSS") / 1024.0,
         peak_rss_mb=kilobytes("VmHWM") / 1024.0,

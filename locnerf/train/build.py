@@ -3,7 +3,8 @@
 Coarse to fine: the grid starts with 1/8 of its vertices and is trilinearly upsampled once; the
 occupancy grid is refreshed periodically so that empty space stops costing samples. Training stops
 after ``steps`` steps or ``minutes`` of wall time, whichever comes first; the learning rates decay
-exponentially with the progress fraction.
+exponentially with the progress fraction. A build of a fixed number of steps with ``threads = 1``
+is bit-reproducible from its seed (several intra-op threads sum gradients in a varying order).
 
 RGB-D data (images with ``depths``, e.g. 7-Scenes) add an expected-depth loss on random rays of
 the depth camera (``depth_weight``) and, optionally, start the density from the back-projected
@@ -13,8 +14,10 @@ step, and training samples only near them. ``use_depth=False`` trains on colour 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
+from collections.abc import Iterator
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field
@@ -73,6 +76,9 @@ class BuildConfig(BaseModel):
         0.03, gt=0, lt=1, description="Occupancy threshold of the saved map (one-step opacity): prunes faint floaters so renders skip more."
     )
     seed: int = Field(0, description="Seed of ray batches and sample jitter.")
+    threads: int | None = Field(
+        None, ge=1, description="torch intra-op threads during the build (1: bit-reproducible from the seed); None keeps the process's setting."
+    )
     use_depth: bool = Field(True, description="Use the images' depth (when they have any); False builds from colour only.")
     depth_weight: float = Field(0.1, ge=0, description="Weight of the expected-depth loss (squared error, map units²) beside the colour MSE.")
     depth_batch_rays: int = Field(2048, gt=0, description="Depth-camera rays per optimisation step for the depth loss.")
@@ -155,13 +161,30 @@ def _optimizer(field: GridField, config: BuildConfig) -> torch.optim.Optimizer:
     )
 
 
+@contextlib.contextmanager
+def intra_op_threads(threads: int | None) -> Iterator[None]:
+    """torch's intra-op thread count set to ``threads`` inside the block, restored after (None: left alone)."""
+    previous = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
 def build_map(images: PosedImages, config: BuildConfig, device: torch.device | str = "cpu", progress: bool = False) -> GridMap:
-    """Train a grid map on ``images`` (the training split).
+    """Train a grid map on ``images`` (the training split), with ``config.threads`` intra-op threads.
 
     Returns:
         the map; its metadata holds ``steps``, ``seconds``, ``train_psnr`` (last batches) and ``source``.
     """
-    device = torch.device(device)
+    with intra_op_threads(config.threads):
+        return _train_map(images, config, torch.device(device), progress)
+
+
+def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, progress: bool) -> GridMap:
+    """:func:`build_map`'s training loop."""
     config = config_for(images, config)
     generator = torch.Generator(device=device).manual_seed(config.seed)
     torch.manual_seed(config.seed)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -16,8 +15,9 @@ import pytest
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, PoseStamped, UpdateResult
-from services.transport import TransportConfig, open_bus
-from tests.services.helpers import free_port, wait_until
+from services.local_hub import LocalHub
+from services.supervisor import Supervisor
+from tests.services.helpers import wait_until
 
 ROBOT = "itest"
 REPO = Path(__file__).resolve().parents[2]
@@ -64,46 +64,31 @@ class Observer:
 
 
 class Stack:
-    """Starts and stops `locnerf run …` processes connected to the hub."""
+    """Starts and stops `locnerf …` processes connected to the hub, through the hub's supervisor."""
 
-    def __init__(self, endpoint: str, logs: Path) -> None:
-        self.endpoint = endpoint
-        self.logs = logs
-        self.processes: dict[str, subprocess.Popen] = {}
-        self.environment = os.environ | {
-            "LOCNERF_ZENOH_MODE": "peer",
-            "LOCNERF_ZENOH_CONNECT": endpoint,
-            "LOCNERF_ZENOH_LISTEN": "tcp/127.0.0.1:0",
-            "PYTHONPATH": str(REPO),
-        }
+    def __init__(self, hub: LocalHub) -> None:
+        self.endpoint = hub.endpoint
+        self.supervisor: Supervisor = hub.supervisor
+
+    @property
+    def environment(self) -> dict[str, str]:
+        """The environment of the services: peers of the hub."""
+        return self.supervisor.environment
+
+    @property
+    def processes(self) -> dict[str, subprocess.Popen]:
+        """The running processes by name."""
+        return self.supervisor.processes
 
     def start(self, name: str, *arguments: str, environment: dict[str, str] | None = None) -> subprocess.Popen:
-        command = [sys.executable, "-m", "cli.main", "-v", *arguments]
-        log = open(self.logs / f"{name}.log", "a")
-        process = subprocess.Popen(command, env=environment or self.environment, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
-        log.close()
-        self.processes[name] = process
-        return process
+        """``locnerf -v <arguments>`` as ``name``."""
+        return self.supervisor.start(name, [sys.executable, "-m", "cli.main", "-v", *arguments], environment)
 
     def kill(self, name: str) -> None:
-        process = self.processes.pop(name)
-        process.kill()
-        process.wait()
-
-    def stop_all(self) -> None:
-        for process in self.processes.values():
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
-        for name, process in self.processes.items():
-            try:
-                process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
-        self.processes.clear()
+        self.supervisor.kill(name)
 
     def log_tail(self) -> str:
-        return "\n".join(f"== {path.name}\n" + "\n".join(path.read_text().splitlines()[-15:]) for path in sorted(self.logs.glob("*.log")))
+        return self.supervisor.log_tail()
 
 
 def watch(bus) -> Observer:
@@ -118,17 +103,8 @@ def watch(bus) -> Observer:
 @pytest.fixture
 def hub(tmp_path) -> Iterator[tuple[Stack, Observer, object]]:
     """(stack, observer, hub bus): a listening hub session and a process launcher."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = open_bus(TransportConfig(listen=(endpoint,)))
-    observer = watch(bus)
-    logs = tmp_path / "logs"
-    logs.mkdir()
-    stack = Stack(endpoint, logs)
-    try:
-        yield stack, observer, bus
-    finally:
-        stack.stop_all()
-        bus.close()
+    with LocalHub(tmp_path / "logs", stop_timeout=20.0, environment=os.environ | {"PYTHONPATH": str(REPO)}, cwd=REPO) as hub:
+        yield Stack(hub), watch(hub.bus), hub.bus
 
 
 def wait_for(condition, timeout: float, what: str, stack: Stack) -> None:

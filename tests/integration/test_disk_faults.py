@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.filter_loop.service import FilterLoopConfig
+from services.supervisor import write_config
 from tests.integration.conftest import ROBOT, wait_for
 
 ODOMETRY_PERIOD = 1 / 15
@@ -9,8 +12,8 @@ ODOMETRY_PERIOD = 1 / 15
 
 def test_filter_with_an_unwritable_state_file_keeps_its_pose_stream(hub, tmp_path):
     stack, observer, _ = hub
-    config = tmp_path / "filter.toml"
-    config.write_text(f'[loop]\nstate_file = "{tmp_path / "missing_folder" / "filter_state.json"}"\nstate_save_rate = 2.0\n')
+    loop = FilterLoopConfig(state_file=str(tmp_path / "missing_folder" / "filter_state.json"), state_save_rate=2.0)
+    config = write_config(tmp_path / "filter.toml", FilterProcessConfig(loop=loop))
     robot = ("--robot-id", ROBOT)
     stack.start("filter", "run", "filter", *robot, "--device", "cpu", "--localizer", "llff", "--config", str(config))
     stack.start("ingest", "run", "ingest", *robot, "--duration", "300")

@@ -13,6 +13,9 @@ import os
 import signal
 import time
 
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.filter_loop.service import FilterLoopConfig
+from services.supervisor import write_config
 from tests.integration.conftest import ROBOT, Observer, Stack, wait_for, watch
 from tests.integration.fault_report import poses_lost, report
 from tests.integration.routing import client_environment, open_client, start_router
@@ -22,9 +25,7 @@ COMMON = ("--robot-id", ROBOT, "--device", "cpu")
 
 
 def filter_config(tmp_path, update_timeout: float = 2.0):
-    path = tmp_path / "filter.toml"
-    path.write_text(f"[loop]\nupdate_timeout = {update_timeout}\n")
-    return path
+    return write_config(tmp_path / "filter.toml", FilterProcessConfig(loop=FilterLoopConfig(update_timeout=update_timeout)))
 
 
 def start_services(stack: Stack, tmp_path, environment: dict[str, str] | None = None) -> None:

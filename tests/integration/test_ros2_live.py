@@ -29,10 +29,14 @@ from locnerf.ros2.types import (
     type_hash,
 )
 from locnerf.sim.world import ProceduralWorld
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.filter_loop.service import FilterLoopConfig
+from services.ros2.config import Ros2Config
 from services.ros2.node import Ros2Node
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from services.sensor_ingest.service import Pacer
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from services.supervisor import write_config
 from tests.integration.conftest import ROBOT, wait_for
 from tests.ros2 import messages
 
@@ -129,9 +133,8 @@ class RosSensors:
 
 
 def filter_config(tmp_path):
-    path = tmp_path / "filter_ros2.toml"
-    path.write_text('[loop]\nstart = "wait"\nupdate_timeout = 3.0\n\n[ros2]\nenabled = true\n')
-    return path
+    config = FilterProcessConfig(loop=FilterLoopConfig(start="wait", update_timeout=3.0), ros2=Ros2Config(enabled=True))
+    return write_config(tmp_path / "filter_ros2.toml", config)
 
 
 def check_tokens(tokens: set[str]) -> None:

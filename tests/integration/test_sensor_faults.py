@@ -20,9 +20,12 @@ from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import InitialPoseCommand
 from locnerf.sim.world import ProceduralWorld
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.filter_loop.service import FilterLoopConfig
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 from services.sensor_ingest.service import Pacer, event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from services.supervisor import write_config
 from tests.integration.conftest import ROBOT, wait_for
 from tests.integration.fault_report import covariance_trace, poses_lost, report
 
@@ -76,8 +79,7 @@ class Schedule:
 def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
     stack, observer, bus = hub
     schedule = Schedule(gap=float(os.environ.get("LOCNERF_FAULT_ODOMETRY_GAP", "2")))
-    config = tmp_path / "filter.toml"
-    config.write_text('[loop]\nstart = "wait"\nupdate_timeout = 2.0\n')
+    config = write_config(tmp_path / "filter.toml", FilterProcessConfig(loop=FilterLoopConfig(start="wait", update_timeout=2.0)))
     stack.start("filter", "run", "filter", "--robot-id", ROBOT, "--device", "cpu", "--config", str(config))
     stack.start("w", "run", "worker", "--robot-id", ROBOT, "--device", "cpu", "--worker-id", "w")
     wait_for(lambda: observer.workers() == ["w"], 120, "the filter and its worker", stack)

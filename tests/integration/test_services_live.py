@@ -17,6 +17,9 @@ import torch
 
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.messages import keys
+from services.filter_loop.__main__ import FilterProcessConfig
+from services.filter_loop.service import FilterLoopConfig
+from services.supervisor import write_config
 from tests.integration.conftest import REPO, ROBOT, wait_for
 from tests.integration.fault_report import covariance_trace, poses_lost, report
 
@@ -58,9 +61,8 @@ def start_services(stack, workers: tuple[str, ...], state_file) -> None:
 
 
 def filter_config(tmp_path):
-    path = tmp_path / "filter.toml"
-    path.write_text(f'[loop]\nstate_file = "{tmp_path / "filter_state.json"}"\nupdate_timeout = 3.0\n')
-    return path
+    loop = FilterLoopConfig(state_file=str(tmp_path / "filter_state.json"), update_timeout=3.0)
+    return write_config(tmp_path / "filter.toml", FilterProcessConfig(loop=loop))
 
 
 def test_global_localization_converges_tracks_and_two_workers_share_updates(hub, tmp_path):

@@ -37,3 +37,15 @@ def test_tiny_lego_map_learns_and_survives_the_map_file(shared_data: Path, tmp_p
     assert scores["psnr"] > 16.0, scores
     loaded = load_map(save_map(radiance_map, tmp_path / "tiny.locmap"))
     assert evaluate_map(loaded.render_rays, views)["psnr"] == scores["psnr"]
+
+
+def test_a_single_threaded_build_of_fixed_steps_is_bit_reproducible(shared_data: Path) -> None:
+    lego = shared_data / "nerf_synthetic" / "lego"
+    train = read_nerf_synthetic(lego, split="train", downscale=16).subset(list(range(0, 100, 10)))
+    config = BuildConfig(steps=40, batch_rays=512, field=GridFieldConfig(voxels=24**3), occupancy_warmup=10, occupancy_every=10, seed=5, threads=1)
+    threads = torch.get_num_threads()
+    first, second = (build_map(train, config).field.state_dict() for _ in range(2))
+    assert torch.get_num_threads() == threads
+    assert first.keys() == second.keys() and all(torch.equal(first[name], second[name]) for name in first)
+    other_seed = build_map(train, config.model_copy(update={"seed": 6})).field.state_dict()
+    assert not torch.equal(first["grid"], other_seed["grid"])
