@@ -74,12 +74,6 @@ class TrackingRecord:
     seconds: float
 
 
-def odometry_increment_in_map_units(previous: torch.Tensor, current: torch.Tensor, scale: float) -> torch.Tensor:
-    """``T_prev_curr`` (4, 4) between two metric odometry poses, translation scaled to map units."""
-    increment = pose_inverse(previous) @ current
-    return make_pose(increment[:3, :3], increment[:3, 3] * scale)
-
-
 def start_particles(localizer: Localizer, truth: torch.Tensor, config: StartConfig, up: tuple[float, float, float]) -> None:
     """Initialise the localizer around the first true pose ``truth`` (4, 4) by the start mode."""
     generator = localizer.generator
@@ -118,15 +112,15 @@ def run_tracking(
     """
     if updates_per_image < 1:
         raise ValueError(f"updates per image {updates_per_image}: expected >= 1")
-    scale = radiance_map.normalization.scale
+    normalization = radiance_map.normalization
     intrinsics = scenario.path.intrinsics
-    start_particles(localizer, scenario.truth[0], start, radiance_map.normalization.up)
+    start_particles(localizer, scenario.truth[0], start, normalization.up)
     image_ticks = set(scenario.image_ticks)
     translation, rotation, updates = [], [], []
     started = time.perf_counter()
     for tick in tqdm(range(len(scenario.stamps)), desc="tracking", disable=not show_progress):
         if tick > 0:
-            increment = odometry_increment_in_map_units(scenario.odometry[tick - 1], scenario.odometry[tick], scale)
+            increment = normalization.increment_to_map(pose_inverse(scenario.odometry[tick - 1]) @ scenario.odometry[tick])
             localizer.predict(increment.to(localizer.device, localizer.dtype))
         if tick in image_ticks:
             image = scenario.image(tick, image_generator).to(radiance_map.device)

@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data import PosedImages
 from locnerf.field.protocol import MapNormalization
-from locnerf.geometry import make_pose, pose_inverse, se3_exp, se3_log
+from locnerf.geometry import pose_inverse, se3_exp, se3_log
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.sensors import CameraConfig, VioConfig, observe_image, simulate_odometry
 from locnerf.sim.trajectory import FigureEightTrajectory
@@ -150,13 +150,6 @@ class SequencePath:
         return self.frames.images[index % len(self.frames)]
 
 
-def dataset_to_map(poses: torch.Tensor, normalization: MapNormalization) -> torch.Tensor:
-    """Camera poses (N, 4, 4) from the metric data-set frame into the map frame (scaled, then moved)."""
-    T_map_dataset = torch.tensor(normalization.T_map_dataset, dtype=torch.float64)
-    scaled = make_pose(poses[:, :3, :3], poses[:, :3, 3] * normalization.scale)
-    return T_map_dataset @ scaled
-
-
 class ScenarioConfig(BaseModel):
     """Rates, odometry errors and the kidnapping of a tracking run."""
 
@@ -222,4 +215,4 @@ def build_scenario(path: CameraPath, config: ScenarioConfig, normalization: MapN
     odometry = simulate_odometry(perceived, config.vio, generator)
     image_times = path.image_times(config.image_rate, odom_rate, duration)
     image_ticks = sorted({round(float(t) * odom_rate) for t in image_times if round(float(t) * odom_rate) < count})
-    return TrackingScenario(stamps, dataset_to_map(metric, normalization), odometry, image_ticks, kidnap_tick, path_times, path)
+    return TrackingScenario(stamps, normalization.metric_to_map(metric), odometry, image_ticks, kidnap_tick, path_times, path)

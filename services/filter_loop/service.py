@@ -37,7 +37,6 @@ from locnerf.messages.schemas import (
     UpdateResult,
 )
 from services.filter_loop.dispatcher import UnknownRequestError, UpdateDispatcher
-from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.state_file import SavedPose, load_pose
 from services.filter_loop.state_writer import StateWriter
@@ -156,8 +155,8 @@ class FilterLoop:
         self._refresh_estimate()
 
     def _initialize_around(self, T_world_cam: torch.Tensor, covariance: torch.Tensor) -> None:
-        mean = metric_to_map(T_world_cam.double(), self.normalization)
-        cov = convert_covariance(covariance, self.normalization, to_map=True) + _COVARIANCE_JITTER * torch.eye(6, dtype=torch.float64)
+        mean = self.normalization.metric_to_map(T_world_cam.double())
+        cov = self.normalization.covariance_to_map(covariance) + _COVARIANCE_JITTER * torch.eye(6, dtype=torch.float64)
         self.localizer.initialize_gaussian(mean, cov)
 
     def _refresh_estimate(self) -> None:
@@ -228,7 +227,7 @@ class FilterLoop:
         if not self.running:
             return []
         self.refresh_estimate()
-        increment = None if increment is None else increment_to_map(increment, self.normalization)
+        increment = None if increment is None else self.normalization.increment_to_map(increment)
         self._estimate = carry_estimate(self._estimate, increment, self.localizer.noise_sigma(), self.localizer.noise_pivot())
         self._pending_increment, self._prediction_pending = increment, True
         return [self._pose_message(message.stamp)]
@@ -254,8 +253,8 @@ class FilterLoop:
 
     def _pose_message(self, stamp: float) -> tuple[str, bytes]:
         estimate = self._estimate
-        pose = map_to_metric(estimate.pose, self.normalization)
-        covariance = convert_covariance(estimate.covariance, self.normalization, to_map=False)
+        pose = self.normalization.map_to_metric(estimate.pose)
+        covariance = self.normalization.covariance_to_metric(estimate.covariance)
         covariance = 0.5 * (covariance + covariance.T)
         if self._state_writer is not None:  # fresh tensors: the writer thread never sees the filter's own
             self._state_writer.offer(SavedPose(stamp, pose.clone(), covariance.clone(), self.history.latest_pose.clone()))
@@ -395,7 +394,7 @@ class FilterLoop:
             self.bad.record("image_too_old", str(error))
             return []
         if carry is not None:
-            carry = increment_to_map(carry, self.normalization)
+            carry = self.normalization.increment_to_map(carry)
         snapshot = self.localizer.snapshot(carry)
         measurement = self.localizer.config.measurement
         intrinsics = header.intrinsics
@@ -407,7 +406,7 @@ class FilterLoop:
 
     def metric_particle_poses(self) -> torch.Tensor:
         """(N, 4, 4) float64 camera poses of the particles, metric, in the map's world frame (needs particles)."""
-        return map_to_metric(self.localizer.particles.poses.double().cpu(), self.normalization)
+        return self.normalization.map_to_metric(self.localizer.particles.poses.double().cpu())
 
     def _particles_message(self) -> tuple[str, bytes]:
         poses = self.metric_particle_poses()

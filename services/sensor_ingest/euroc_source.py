@@ -22,8 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.euroc import EurocCamera, EurocSequence
 from locnerf.geometry.frames import opencv_to_opengl
-from locnerf.geometry.se3 import pose_inverse
-from services.poses import interpolate_pose
+from locnerf.geometry.se3 import interpolate_pose, pose_inverse
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
 

@@ -15,7 +15,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.posed_images import PosedImages
-from services.poses import interpolate_pose, map_to_metric
+from locnerf.geometry.se3 import interpolate_pose
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
 
@@ -38,7 +38,7 @@ def replay_events(sequence: PosedImages, config: ReplaySourceConfig, generator: 
     """Time-ordered ground truth and odometry (same stamps, truth first) and image events."""
     if len(sequence) < 2:
         raise ValueError(f"{sequence.source}: a replay needs at least 2 frames, got {len(sequence)}")
-    poses = map_to_metric(sequence.T_world_cam.double(), sequence.normalization)
+    poses = sequence.normalization.map_to_metric(sequence.T_world_cam.double())
     odometry = SyntheticOdometry(config.odometry, generator)
     end = (len(sequence) - 1) / config.frame_rate
     stamps = [(i / config.odometry_rate, 0) for i in range(int(end * config.odometry_rate) + 1)]

@@ -28,7 +28,6 @@ from locnerf.field.protocol import MapNormalization
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld
-from services.poses import map_to_metric
 from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 
 WORLD = "world"
@@ -54,7 +53,7 @@ def camera_path(config: ScenarioSourceConfig) -> CameraPath:
     if config.sequence == WORLD:
         return WorldPath(ProceduralWorld.default(), FigureEightTrajectory(), CameraConfig())
     frames = read_dataset(config.sequence, split=config.split, downscale=config.downscale)
-    metric = dataclasses.replace(frames, T_world_cam=map_to_metric(frames.T_world_cam.double(), frames.normalization))
+    metric = dataclasses.replace(frames, T_world_cam=frames.normalization.map_to_metric(frames.T_world_cam.double()))
     return SequencePath(metric, config.speed, config.vio.rate)
 
 

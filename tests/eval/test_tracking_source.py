@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from locnerf.data import PosedImages, read_nerf_synthetic
-from locnerf.eval.tracking_source import ScenarioConfig, SequencePath, WorldPath, build_scenario, dataset_to_map
+from locnerf.eval.tracking_source import ScenarioConfig, SequencePath, WorldPath, build_scenario
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import make_pose, pose_inverse, rotation_error_deg, so3_exp, translation_error
 from locnerf.render.camera import PinholeIntrinsics
@@ -58,15 +58,6 @@ def test_image_rate_above_odometry_rate_is_refused() -> None:
 def test_kidnapping_after_the_run_is_refused() -> None:
     with pytest.raises(ValueError, match="kidnap_at 5.0 s"):
         build_scenario(world_path(), ScenarioConfig(duration=2.0, kidnap_at=5.0), MapNormalization())
-
-
-def test_dataset_to_map_scales_then_moves() -> None:
-    turn = make_pose(so3_exp(torch.tensor([0.0, 0.5, 0.0], dtype=torch.float64)), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
-    normalization = MapNormalization(T_map_dataset=turn.tolist(), scale=2.0)
-    pose = make_pose(so3_exp(torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)), torch.tensor([0.5, -1.0, 0.25], dtype=torch.float64))
-    mapped = dataset_to_map(pose[None], normalization)[0]
-    torch.testing.assert_close(mapped[:3, 3], turn[:3, :3] @ (2.0 * pose[:3, 3]) + turn[:3, 3])
-    torch.testing.assert_close(mapped[:3, :3], turn[:3, :3] @ pose[:3, :3])
 
 
 def tiny_sequence(count: int = 6) -> PosedImages:
