@@ -188,8 +188,8 @@ def _write_configs(folder: Path, robot: str) -> dict[str, Path]:
     texts = {
         "filter": f'robot_id = "{robot}"\nmap = "world"\ndevice = "cpu"\n',
         "worker": f'robot_id = "{robot}"\nmap = "world"\ndevice = "cpu"\nworker_id = "fuzzed"\n',
-        # Odometry only (int(duration · camera_rate) = 0 frames): no image of the stream competes with the hostile ones.
-        "ingest": f'robot_id = "{robot}"\ningest_id = "stream"\n[world]\ncamera_rate = 1e-9\nduration = 86400.0\n',
+        # Odometry only (image_rate = 0): no image of the stream competes with the hostile ones.
+        "ingest": f'robot_id = "{robot}"\ningest_id = "stream"\n[world]\nimage_rate = 0.0\nduration = 86400.0\n',
         "ingest_waiting": f'robot_id = "{robot}"\ningest_id = "{WAITING_INGEST}"\nwait_for_workers = 1000\nwait_timeout = 86400.0\n',
     }
     return write_config_files(folder, texts)

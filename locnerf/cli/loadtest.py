@@ -104,8 +104,8 @@ def _write_configs(case: LoadCaseConfig, folder: Path) -> argparse.Namespace:
     files = {
         "localizer": f'preset = "llff"\nparticles = {case.particles}\n\n[measurement]\npixels = {case.pixels}\n\n'
         f"[annealing]\nreduced_particles = {case.particles}\n",
-        "ingest": f'source = "world"\n{prefetch}\n[world]\nodometry_rate = {case.input_odometry_rate}\n'
-        f"camera_rate = {case.input_camera_rate}\n{reuse}",
+        "ingest": f'source = "world"\n{prefetch}\n[world]\nimage_rate = {case.input_camera_rate}\n{reuse}'
+        f"\n[world.vio]\nrate = {case.input_odometry_rate}\n",
         "filter": f"map = {json.dumps(case.map)}\n",
         "worker": f"map = {json.dumps(case.map)}\n",
     }

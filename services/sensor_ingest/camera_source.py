@@ -10,7 +10,7 @@ import cv2
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.render.camera import PinholeIntrinsics
-from services.sensor_ingest.events import ImageEvent
+from locnerf.sim.events import ImageEvent
 
 
 class CameraSourceConfig(BaseModel):

@@ -20,8 +20,9 @@ from locnerf.eval.tracking import (
     settle_tick,
     summarize_tracking,
 )
-from locnerf.eval.tracking_source import ScenarioConfig, WorldPath, build_scenario
 from locnerf.filter import Localizer
+from locnerf.sim.paths import WorldPath
+from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld, WorldConfig

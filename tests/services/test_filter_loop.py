@@ -27,6 +27,7 @@ from locnerf.messages.schemas import (
     PoseEstimate,
     UpdateRequest,
 )
+from locnerf.sim.events import GroundTruthEvent
 from locnerf.sim.world import ProceduralWorld
 from services.filter_loop.__main__ import FilterProcessConfig, build_loop
 from services.filter_loop.odometry_history import OdometryHistory
@@ -34,7 +35,6 @@ from services.filter_loop.service import FilterLoop, FilterLoopConfig
 from services.filter_loop.state_file import SavedPose
 from services.filter_loop.state_writer import StateWriter
 from services.nerf_worker.service import NerfWorker
-from services.sensor_ingest.events import GroundTruthEvent
 from services.sensor_ingest.service import event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 
@@ -87,7 +87,7 @@ def test_global_localization_converges_and_tracks(world):
     harness = Harness(world)
     harness.add_worker("w1")
     truth, errors = None, []
-    for event in world_events(world, WorldSourceConfig(duration=10.0), torch.Generator().manual_seed(1)):
+    for event in world_events(world, WorldSourceConfig(duration=10.0), seed=1):
         harness.now = event.stamp
         if isinstance(event, GroundTruthEvent):
             truth = event.T_world_cam
