@@ -2,8 +2,8 @@
 
 The run walks the odometry grid of a :class:`~locnerf.sim.scenario.TrackingScenario`:
 at every stamp the localizer predicts with the odometry increment (carried from the body to the
-camera, converted to map units with the map's scale), updates synchronously when an image was taken at that stamp, and the error of
-its estimate against the truth is recorded.
+camera, converted to map units with the map's scale), updates synchronously when an image was
+taken at that stamp, and the error of its estimate against the truth is recorded.
 
 Convergence: the first stamp from which both errors stay under the thresholds (default 0.05 map
 units and 5°) for ``hold`` seconds (default 2 s). Statistics "after convergence" cover the

@@ -3,8 +3,8 @@
 Images keep their EuRoC stamps (seconds since the epoch) and are undistorted with the camera's
 radial-tangential model (grey frames become three equal channels). locnerf runs no VIO of its own,
 so the odometry is synthesised from the ground-truth trajectory (interpolated geodesically) with the
-simulated VIO of :func:`locnerf.sim.sensors.simulate_odometry` (the evaluation's model): of the camera (body pose · ``T_BS``) by
-default, or of the body (IMU) frame, as a real VIO reports it, with ``odometry_frame = "body"``;
+simulated VIO of :func:`locnerf.sim.sensors.simulate_odometry` (the evaluation's model): of the
+camera (body pose · ``T_BS``) by default, or of the body (IMU) frame, as a real VIO reports it, with ``odometry_frame = "body"``;
 the filter then needs ``loop.T_body_cam`` = :func:`euroc_T_body_cam`. The ground truth (camera) is
 published beside it. IMU samples are not read. Only frames inside the ground
 truth's time span are sent.

@@ -2,8 +2,8 @@
 
 Frame k is stamped ``k / frame_rate``. Between frames the camera moves along the geodesic between
 their poses; odometry (the simulated VIO of :func:`locnerf.sim.sensors.simulate_odometry`, the
-evaluation's model) and ground truth are emitted at ``vio.rate`` along that path. Poses leave as metric world-frame poses (the sequence's map-frame
-poses converted with its normalisation).
+evaluation's model) and ground truth are emitted at ``vio.rate`` along that path. Poses leave as
+metric world-frame poses (the sequence's map-frame poses converted with its normalisation).
 """
 
 from __future__ import annotations
