@@ -21,7 +21,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.cli.services_link import transport
 from locnerf.cli.up import free_port, service_commands, stop_processes, write_config_files
@@ -67,6 +67,13 @@ class LoadCaseConfig(BaseModel):
         "holds no queue of its own.",
     )
     memory_period: float = Field(5.0, gt=0, description="Seconds between two readings of every process's resident memory.")
+
+    @model_validator(mode="after")
+    def _images_on_the_odometry_grid(self) -> LoadCaseConfig:
+        """The simulated camera takes its images at odometry stamps (locnerf.sim.scenario)."""
+        if self.camera_rate > self.odometry_rate:
+            raise ValueError(f"camera_rate {self.camera_rate} Hz above odometry_rate {self.odometry_rate} Hz: expected camera_rate <= odometry_rate")
+        return self
 
     @property
     def input_odometry_rate(self) -> float:

@@ -102,7 +102,7 @@ def test_global_localization_converges_and_tracks(world):
     assert errors[0][0] > 0.5, "the start should be lost (uniform over the room)"
     tracked = errors[-45:]  # the last 3 s
     assert max(e[0] for e in tracked) < 0.15 and max(e[1] for e in tracked) < 3.0, tracked
-    assert len(harness.poses) == 150  # one pose per odometry message
+    assert len(harness.poses) == 151  # one pose per odometry message: 0 .. 10 s at 15 Hz, both ends (the simulator's grid)
 
 
 def _odometry(stamp: float, pose: torch.Tensor) -> bytes:
