@@ -25,11 +25,12 @@ from locnerf.eval.tracking import (
     summarize_tracking,
 )
 from locnerf.eval.tracking_plots import plot_tracking_errors
-from locnerf.eval.tracking_source import CameraPath, ScenarioConfig, SequencePath, WorldPath, build_scenario
 from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import WORLD, open_map
+from locnerf.sim.paths import CameraPath, SequencePath, WorldPath
+from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld

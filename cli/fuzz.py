@@ -189,15 +189,15 @@ def compare_counts(target: FuzzTarget, sent: collections.Counter[tuple[str, str]
 def service_configs(robot: str) -> dict[str, tuple[str, BaseModel]]:
     """The fuzzed processes by log name: (service, configuration).
 
-    The streaming ingest sends odometry only (``int(duration · camera_rate)`` = 0 frames), so no
-    image of the stream competes with the hostile ones; the waiting ingest waits for a thousand
+    The streaming ingest sends odometry only (``image_rate = 0``), so no image of the stream
+    competes with the hostile ones; the waiting ingest waits for a thousand
     workers for a day, subscribed to the filter status all along.
     """
     on_cpu = {"robot_id": robot, "map": "world", "device": "cpu"}
     return {
         "filter": ("filter", FilterProcessConfig(**on_cpu)),
         "worker": ("worker", WorkerConfig(worker_id="fuzzed", **on_cpu)),
-        "ingest": ("ingest", IngestConfig(robot_id=robot, ingest_id="stream", world={"camera_rate": 1e-9, "duration": 86400.0})),
+        "ingest": ("ingest", IngestConfig(robot_id=robot, ingest_id="stream", world={"image_rate": 0.0, "duration": 86400.0})),
         "ingest_waiting": ("ingest", IngestConfig(robot_id=robot, ingest_id=WAITING_INGEST, wait_for_workers=1000, wait_timeout=86400.0)),
     }
 

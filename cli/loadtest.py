@@ -20,7 +20,7 @@ import os
 import time
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cli.flags import from_flags
 from cli.up import ServiceConfigs, start_services
@@ -74,6 +74,13 @@ class LoadCaseConfig(BaseModel):
     )
     memory_period: float = Field(5.0, gt=0, description="Seconds between two readings of every process's resident memory.")
 
+    @model_validator(mode="after")
+    def _images_on_the_odometry_grid(self) -> LoadCaseConfig:
+        """The simulated camera takes its images at odometry stamps (locnerf.sim.scenario)."""
+        if self.camera_rate > self.odometry_rate:
+            raise ValueError(f"camera_rate {self.camera_rate} Hz above odometry_rate {self.odometry_rate} Hz: expected camera_rate <= odometry_rate")
+        return self
+
     @property
     def input_odometry_rate(self) -> float:
         """Odometry messages per second actually sent."""
@@ -111,7 +118,7 @@ def service_configs(case: LoadCaseConfig, folder: Path) -> ServiceConfigs:
     events = math.ceil(stream_seconds * (2 * case.input_odometry_rate + case.input_camera_rate)) + 8
     localizer = preset("llff", particles=case.particles, measurement={"pixels": case.pixels}, annealing={"reduced_particles": case.particles})
     localizer_file = write_config(folder / "localizer.toml", localizer)
-    world = {"odometry_rate": case.input_odometry_rate, "camera_rate": case.input_camera_rate, "duration": stream_seconds}
+    world = {"vio": {"rate": case.input_odometry_rate}, "image_rate": case.input_camera_rate, "duration": stream_seconds}
     if case.overloaded:
         world["distinct_frames"] = OVERLOAD_FRAMES
     prefill = case.prerender and not case.overloaded

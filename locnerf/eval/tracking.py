@@ -1,9 +1,9 @@
 """Tracking along a camera path with odometry (the paper's third experiment, Fig. 5).
 
-The run walks the odometry grid of a :class:`~locnerf.eval.tracking_source.TrackingScenario`:
-at every stamp the localizer predicts with the odometry increment (converted to map units with
-the map's scale), updates synchronously when an image was taken at that stamp, and the error of
-its estimate against the truth is recorded.
+The run walks the odometry grid of a :class:`~locnerf.sim.scenario.TrackingScenario`:
+at every stamp the localizer predicts with the odometry increment (carried from the body to the
+camera, converted to map units with the map's scale), updates synchronously when an image was
+taken at that stamp, and the error of its estimate against the truth is recorded.
 
 Convergence: the first stamp from which both errors stay under the thresholds (default 0.05 map
 units and 5°) for ``hold`` seconds (default 2 s). Statistics "after convergence" cover the
@@ -24,10 +24,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
 from locnerf.errors import LocnerfInputError
-from locnerf.eval.tracking_source import TrackingScenario
 from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer, SearchRegion
 from locnerf.geometry import make_pose, pose_inverse, rotation_error_deg, se3_exp, translation_error
+from locnerf.sim.scenario import TrackingScenario
 
 logger = logging.getLogger(__name__)
 
@@ -75,12 +75,6 @@ class TrackingRecord:
     seconds: float
 
 
-def odometry_increment_in_map_units(previous: torch.Tensor, current: torch.Tensor, scale: float) -> torch.Tensor:
-    """``T_prev_curr`` (4, 4) between two metric odometry poses, translation scaled to map units."""
-    increment = pose_inverse(previous) @ current
-    return make_pose(increment[:3, :3], increment[:3, 3] * scale)
-
-
 def start_particles(localizer: Localizer, truth: torch.Tensor, config: StartConfig, up: tuple[float, float, float]) -> None:
     """Initialise the localizer around the first true pose ``truth`` (4, 4) by the start mode."""
     generator = localizer.generator
@@ -119,15 +113,17 @@ def run_tracking(
     """
     if updates_per_image < 1:
         raise LocnerfInputError(f"updates per image {updates_per_image}: expected >= 1")
-    scale = radiance_map.normalization.scale
+    normalization = radiance_map.normalization
+    T_body_cam = scenario.path.T_body_cam
     intrinsics = scenario.path.intrinsics
-    start_particles(localizer, scenario.truth[0], start, radiance_map.normalization.up)
+    start_particles(localizer, scenario.truth[0], start, normalization.up)
     image_ticks = set(scenario.image_ticks)
     translation, rotation, updates = [], [], []
     started = time.perf_counter()
     for tick in tqdm(range(len(scenario.stamps)), desc="tracking", disable=not show_progress):
         if tick > 0:
-            increment = odometry_increment_in_map_units(scenario.odometry[tick - 1], scenario.odometry[tick], scale)
+            body_step = pose_inverse(scenario.odometry[tick - 1]) @ scenario.odometry[tick]
+            increment = normalization.increment_to_map(pose_inverse(T_body_cam) @ body_step @ T_body_cam)
             localizer.predict(increment.to(localizer.device, localizer.dtype))
         if tick in image_ticks:
             image = scenario.image(tick, image_generator).to(radiance_map.device)

@@ -26,7 +26,6 @@ from typing import Any
 import torch
 
 from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord, summarize_tracking
-from locnerf.eval.tracking_source import dataset_to_map
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import rotation_error_deg, translation_error
 
@@ -67,8 +66,8 @@ def live_record(observed: LiveObservations, normalization: MapNormalization, kid
     if not scored:
         raise ValueError(f"none of the {len(observed.poses)} published poses had ground truth of its stamp: nothing to score")
     stamps = torch.tensor([s for s, _, _ in scored], dtype=torch.float64)
-    estimates = dataset_to_map(torch.stack([p for _, _, p in scored]), normalization)
-    truths = dataset_to_map(torch.stack([observed.truth[s] for s, _, _ in scored]), normalization)
+    estimates = normalization.metric_to_map(torch.stack([p for _, _, p in scored]))
+    truths = normalization.metric_to_map(torch.stack([observed.truth[s] for s, _, _ in scored]))
     arrivals = [a for _, a, _ in scored]
     ticks = sorted(max(0, bisect.bisect_right(arrivals, arrival) - 1) for arrival in observed.updates.values())
     kidnap_tick = None

@@ -3,6 +3,12 @@
 Every map backend (the grid field, the nerf-pytorch MLP, and the analytic procedural world of
 :mod:`locnerf.sim`) satisfies :class:`RadianceMap`. The filter reaches it only through the
 ``render_rays`` callable that the measurement model receives.
+
+:class:`MapNormalization` also converts between the data set's metric world frame and the map
+frame (design section 5): ``T_map_cam = T_map_dataset · scaled(T_world_cam)``, where ``scaled``
+multiplies the translation by the map's scale (map units per metre). Covariances are in the
+tangent space at the pose, on the right (``pose · Exp(δ)``, rotation first), so only their
+translation block changes, by the scale squared.
 """
 
 from __future__ import annotations
@@ -12,7 +18,15 @@ from typing import Protocol, runtime_checkable
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from locnerf.geometry.se3 import pose_inverse
 from locnerf.render.camera import PinholeIntrinsics
+
+
+def _translation_scaled(poses: torch.Tensor, factor: float) -> torch.Tensor:
+    """Copies of poses (..., 4, 4) with the translation multiplied by ``factor``."""
+    out = poses.clone()
+    out[..., :3, 3] = out[..., :3, 3] * factor
+    return out
 
 
 class MapNormalization(BaseModel):
@@ -32,6 +46,37 @@ class MapNormalization(BaseModel):
     up: tuple[float, float, float] = Field(
         (0.0, 1.0, 0.0), description="Unit axis of the map frame opposite to gravity (the yaw axis of global localization)."
     )
+
+    def _T_map_dataset(self, like: torch.Tensor) -> torch.Tensor:
+        """``T_map_dataset`` (4, 4) in the dtype and on the device of ``like``."""
+        return torch.tensor(self.T_map_dataset, dtype=like.dtype, device=like.device)
+
+    def metric_to_map(self, T_world_cam: torch.Tensor) -> torch.Tensor:
+        """Poses (..., 4, 4) in the metric world frame -> map-frame poses ``T_map_cam`` (..., 4, 4), map units."""
+        return self._T_map_dataset(T_world_cam) @ _translation_scaled(T_world_cam, self.scale)
+
+    def map_to_metric(self, T_map_cam: torch.Tensor) -> torch.Tensor:
+        """Map-frame poses (..., 4, 4) -> metric world-frame poses (..., 4, 4); the inverse of :meth:`metric_to_map`."""
+        return _translation_scaled(pose_inverse(self._T_map_dataset(T_map_cam)) @ T_map_cam, 1.0 / self.scale)
+
+    def increment_to_map(self, T_prev_curr: torch.Tensor) -> torch.Tensor:
+        """Body-frame motion increments (..., 4, 4) in metres -> map units (rotation unchanged)."""
+        return _translation_scaled(T_prev_curr, self.scale)
+
+    def _covariance_scaled(self, covariance: torch.Tensor, factor: float) -> torch.Tensor:
+        """``D Σ D`` float64 (6, 6) with ``D = diag(1, 1, 1, factor, factor, factor)``."""
+        if covariance.shape != (6, 6):
+            raise ValueError(f"covariance: expected shape (6, 6) (rotation, translation), got {tuple(covariance.shape)}")
+        d = torch.tensor([1.0, 1.0, 1.0, factor, factor, factor], dtype=torch.float64, device=covariance.device)
+        return covariance.double() * d[:, None] * d[None, :]
+
+    def covariance_to_map(self, covariance: torch.Tensor) -> torch.Tensor:
+        """A (rotation, translation) tangent covariance (6, 6) in metres -> map units, float64 (6, 6)."""
+        return self._covariance_scaled(covariance, self.scale)
+
+    def covariance_to_metric(self, covariance: torch.Tensor) -> torch.Tensor:
+        """A (rotation, translation) tangent covariance (6, 6) in map units -> metres, float64 (6, 6)."""
+        return self._covariance_scaled(covariance, 1.0 / self.scale)
 
 
 @runtime_checkable

@@ -16,7 +16,7 @@ from locnerf.geometry.quaternion import (
     quaternion_to_rotvec,
     rotvec_to_quaternion,
 )
-from locnerf.geometry.se3 import make_pose, pose_inverse, relative_pose, se3_exp, se3_log
+from locnerf.geometry.se3 import interpolate_pose, make_pose, pose_inverse, relative_pose, se3_exp, se3_log
 from locnerf.geometry.so3 import hat, rotation_angle, so3_exp, so3_log, vee
 from locnerf.geometry.validation import InvalidPoseError, validate_poses, validate_rotations
 
@@ -26,6 +26,7 @@ __all__ = [
     "chordal_rotation_mean",
     "geodesic_rotation_mean",
     "hat",
+    "interpolate_pose",
     "make_pose",
     "matrix_to_quaternion",
     "matrix_to_ypr",

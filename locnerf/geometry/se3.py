@@ -60,3 +60,8 @@ def se3_log(pose: torch.Tensor) -> torch.Tensor:
 def relative_pose(pose_a: torch.Tensor, pose_b: torch.Tensor) -> torch.Tensor:
     """``T_a_b = T_world_a⁻¹ · T_world_b`` for poses (..., 4, 4)."""
     return pose_inverse(pose_a) @ pose_b
+
+
+def interpolate_pose(start: torch.Tensor, end: torch.Tensor, fraction: float) -> torch.Tensor:
+    """Geodesic interpolation ``start · Exp(fraction · Log(start⁻¹ end))`` of poses (..., 4, 4): 0 gives start, 1 end."""
+    return start @ se3_exp(fraction * se3_log(pose_inverse(start) @ end))

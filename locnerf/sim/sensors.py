@@ -8,7 +8,12 @@ VIO model, per increment k (stamps ``t_k = t_0 + k / rate``), with the true body
 
 so the odometry frame coincides with the world at the first stamp and then drifts: a scale error
 ``s`` of the distance travelled, a yaw drift ``ω_yaw`` about the body's up (y) axis, and white
-noise on every increment (tangent order: rotation first, as everywhere in locnerf).
+noise on every increment (tangent order: rotation first, as everywhere in locnerf). A long run is
+simulated piece by piece: each piece starts from the odometry pose where the previous one ended.
+
+Camera model: the clean render times an exposure gain ``1 + a·sin(2π t / period)`` plus white
+Gaussian noise on every channel, clamped to [0, 1]. This is the one sensor model of locnerf: the
+offline tracking evaluation, the live services' simulated sources and the load test use it.
 """
 
 from __future__ import annotations
@@ -37,9 +42,18 @@ class VioConfig(BaseModel):
     translation_noise: float = Field(2e-3, ge=0, description="Std of the white translation noise on each increment, metres per axis.")
 
 
-def simulate_odometry(true_poses: torch.Tensor, config: VioConfig, generator: torch.Generator) -> torch.Tensor:
-    """Drifting odometry ``T_odom_body`` (K, 4, 4) from true body poses ``T_world_body`` (K, 4, 4) at the VIO rate."""
+def simulate_odometry(
+    true_poses: torch.Tensor, config: VioConfig, generator: torch.Generator, start: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Drifting odometry ``T_odom_body`` (K, 4, 4) float64 from true body poses ``T_world_body`` (K, 4, 4) at the VIO rate.
+
+    Args:
+        start: (4, 4) odometry pose at the first true pose, to continue an earlier piece of the run;
+            None: the first true pose (the odometry frame starts at the world frame).
+    """
     validate_poses(true_poses, name="true_poses")
+    if start is not None:
+        validate_poses(start, name="start")
     if true_poses.ndim != 3 or true_poses.shape[0] < 1:
         raise ValueError(f"true_poses: expected shape (K, 4, 4) with K >= 1, got {tuple(true_poses.shape)}")
     poses = true_poses.double().cpu()
@@ -52,18 +66,17 @@ def simulate_odometry(true_poses: torch.Tensor, config: VioConfig, generator: to
     sigma = torch.tensor([config.rotation_noise] * 3 + [config.translation_noise] * 3, dtype=torch.float64)
     noise = se3_exp(torch.randn(count, 6, dtype=torch.float64, generator=generator) * sigma)
     drifted = make_pose(rotation, translation) @ noise
-    odometry = [poses[0]]
+    odometry = [poses[0] if start is None else start.double().cpu()]
     for increment in drifted:
         odometry.append(odometry[-1] @ increment)
     return torch.stack(odometry)
 
 
 class CameraConfig(BaseModel):
-    """Rate, noise and mounting of the simulated camera."""
+    """Noise, gain and mounting of the simulated camera (its image rate is the run's, see ScenarioConfig)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    rate: float = Field(5.0, gt=0, description="Images per second, Hz.")
     pixel_noise: float = Field(0.01, ge=0, description="Std of the white Gaussian noise added to every channel, in [0, 1] units.")
     gain_amplitude: float = Field(0.0, ge=0, lt=1, description="Amplitude of the global exposure gain drift: gain = 1 + a·sin(2π t / period).")
     gain_period: float = Field(20.0, gt=0, description="Period of the exposure gain drift, seconds.")

@@ -1,101 +1,58 @@
-"""A time-ordered stream of synthetic sensor events: drifting odometry and noisy images.
+"""A simulated run as a time-ordered stream of sensor events, the way the ingest service publishes it.
 
-Odometry is computed for the whole run up front (it is cheap); images are rendered lazily while
-iterating. At equal stamps an odometry event comes before the image event.
+Every odometry stamp yields its ground truth, then its odometry, then (on image stamps) the image,
+so a filter has predicted to an image's stamp before it corrects with it. Poses are metric (the
+wire carries metric poses); images are rendered lazily, segment by segment
+(:func:`locnerf.sim.scenario.scenario_segments`), and quantised to 8-bit RGB. The data are those
+of :func:`locnerf.sim.scenario.build_scenario` for the same path and configuration, and the
+images draw their noise from ``seed + 1``, as the offline ``locnerf eval tracking`` does.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator
 
+import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.geometry.validation import validate_poses
-from locnerf.render.camera import PinholeIntrinsics
-from locnerf.sim.sensors import CameraConfig, VioConfig, observe_image, simulate_odometry
-from locnerf.sim.trajectory import FigureEightTrajectory
-from locnerf.sim.world import ProceduralWorld
+from locnerf.field.protocol import MapNormalization
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent, rgb8
+from locnerf.sim.paths import CameraPath
+from locnerf.sim.scenario import ScenarioConfig, TrackingScenario, scenario_segments
 
 
-@dataclass(frozen=True)
-class OdometryEvent:
-    """One VIO message: ``T_odom_body`` (4, 4) float64 and the true ``T_world_body`` (4, 4) for evaluation."""
-
-    stamp: float
-    T_odom_body: torch.Tensor
-    T_world_body: torch.Tensor
-
-
-@dataclass(frozen=True)
-class ImageEvent:
-    """One camera image (H, W, 3) float32 in [0, 1], its intrinsics and the true ``T_world_cam`` (4, 4)."""
-
-    stamp: float
-    image: torch.Tensor
-    intrinsics: PinholeIntrinsics
-    T_world_cam: torch.Tensor
-
-
-class SyntheticStreamConfig(BaseModel):
-    """What the synthetic run records and for how long."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    seed: int = Field(0, description="Seed of the odometry and image noise.")
-    duration: float | None = Field(None, gt=0, description="Length of the run, seconds; None: one loop of the trajectory.")
-    vio: VioConfig = Field(default_factory=VioConfig, description="Odometry rate and drift.")
-    camera: CameraConfig = Field(default_factory=CameraConfig, description="Camera rate, noise and extrinsic.")
-
-
-class SyntheticStream:
-    """Iterate a synthetic run's events in time order.
+def scenario_events(segments: Iterable[TrackingScenario], image_generator: torch.Generator, distinct_frames: int = 0) -> Iterator[SensorEvent]:
+    """Ground truth and odometry at every stamp of the segments, then the image on image stamps.
 
     Args:
-        world: the scene the camera sees.
-        trajectory: the true body path.
-        config: rates, noise and seed.
-        intrinsics: camera model; None: ``world.default_intrinsics``.
+        segments: consecutive pieces of one run, truth in the metric world frame.
+        image_generator: draws of the image noise.
+        distinct_frames: render only the first N images and send them again in turn (0: render
+            every image). An overload test uses it to send images faster than the renderer
+            could; the images then no longer match the poses.
     """
+    if distinct_frames < 0:
+        raise ValueError(f"distinct_frames {distinct_frames}: expected >= 0 (0 renders every image)")
+    rendered: list[np.ndarray] = []
+    images_sent = 0
+    for segment in segments:
+        image_ticks = set(segment.image_ticks)
+        for tick, stamp in enumerate(segment.stamps.tolist()):
+            yield GroundTruthEvent(stamp, segment.truth[tick])
+            yield OdometryEvent(stamp, segment.odometry[tick])
+            if tick not in image_ticks:
+                continue
+            if distinct_frames and len(rendered) == distinct_frames:
+                pixels = rendered[images_sent % distinct_frames]
+            else:
+                pixels = rgb8(segment.image(tick, image_generator))
+                if distinct_frames:
+                    rendered.append(pixels)
+            images_sent += 1
+            yield ImageEvent(stamp, pixels, segment.path.intrinsics)
 
-    def __init__(
-        self,
-        world: ProceduralWorld,
-        trajectory: FigureEightTrajectory,
-        config: SyntheticStreamConfig | None = None,
-        intrinsics: PinholeIntrinsics | None = None,
-    ) -> None:
-        self.world = world
-        self.trajectory = trajectory
-        self.config = config or SyntheticStreamConfig()
-        self.intrinsics = intrinsics or world.default_intrinsics
-        self.duration = self.config.duration if self.config.duration is not None else trajectory.duration
-        self.T_body_cam = torch.tensor(self.config.camera.T_body_cam, dtype=torch.float64)
-        validate_poses(self.T_body_cam, name="camera.T_body_cam")
 
-    def _stamps(self, rate: float) -> torch.Tensor:
-        """Stamps k / rate for k = 0, 1, ... up to the duration (inclusive), float64 (K,)."""
-        count = math.floor(self.duration * rate + 1e-9) + 1
-        return torch.arange(count, dtype=torch.float64) / rate
-
-    def __iter__(self) -> Iterator[OdometryEvent | ImageEvent]:
-        generator = torch.Generator().manual_seed(self.config.seed)
-        odom_stamps = self._stamps(self.config.vio.rate)
-        truth = self.trajectory.poses_at(odom_stamps)
-        odometry = simulate_odometry(truth, self.config.vio, generator)
-        image_stamps = self._stamps(self.config.camera.rate).tolist()
-        next_image = 0
-        for stamp, T_odom_body, T_world_body in zip(odom_stamps.tolist(), odometry, truth):
-            while next_image < len(image_stamps) and image_stamps[next_image] < stamp:
-                yield self._image(image_stamps[next_image], generator)
-                next_image += 1
-            yield OdometryEvent(stamp, T_odom_body, T_world_body)
-        for image_stamp in image_stamps[next_image:]:
-            yield self._image(image_stamp, generator)
-
-    def _image(self, stamp: float, generator: torch.Generator) -> ImageEvent:
-        T_world_cam = self.trajectory.pose_at(stamp) @ self.T_body_cam
-        image = observe_image(self.world.render_image, T_world_cam, stamp, self.intrinsics, self.config.camera, generator)
-        return ImageEvent(stamp, image, self.intrinsics, T_world_cam)
+def simulated_events(path: CameraPath, config: ScenarioConfig, distinct_frames: int = 0) -> Iterator[SensorEvent]:
+    """The sensor events of the run along ``path`` (see :func:`scenario_events`), poses in the metric world frame."""
+    segments = scenario_segments(path, config, MapNormalization())
+    return scenario_events(segments, torch.Generator().manual_seed(config.seed + 1), distinct_frames)

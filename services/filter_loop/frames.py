@@ -13,7 +13,6 @@ import torch
 
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import ParticleEstimate
-from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
 
 COVARIANCE_JITTER = 1e-10
 """Added to a commanded or restored covariance so that a fully converged (rank-deficient) one can be sampled."""
@@ -47,22 +46,22 @@ class FilterFrames:
 
     def map_increment(self, increment: torch.Tensor | None) -> torch.Tensor | None:
         """A metric odometry increment ``T_prev_curr`` (4, 4) in map units (None stays None: noise only)."""
-        return None if increment is None else increment_to_map(increment, self.normalization)
+        return None if increment is None else self.normalization.increment_to_map(increment)
 
     def particle_distribution(self, T_world_cam: torch.Tensor, covariance: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """A metric pose (4, 4) and its (6, 6) covariance -> the mean (4, 4) and jittered covariance
         (6, 6) in map units, float64, that particles are drawn from."""
-        mean = metric_to_map(T_world_cam.double(), self.normalization)
-        cov = convert_covariance(covariance, self.normalization, to_map=True) + COVARIANCE_JITTER * torch.eye(6, dtype=torch.float64)
+        mean = self.normalization.metric_to_map(T_world_cam.double())
+        cov = self.normalization.covariance_to_map(covariance) + COVARIANCE_JITTER * torch.eye(6, dtype=torch.float64)
         return mean, cov
 
     def metric_estimate(self, estimate: ParticleEstimate) -> MetricEstimate:
         """The estimate (map units) as published: metric pose, symmetrised metric covariance, spread in metres."""
-        pose = map_to_metric(estimate.pose, self.normalization)
-        covariance = convert_covariance(estimate.covariance, self.normalization, to_map=False)
+        pose = self.normalization.map_to_metric(estimate.pose)
+        covariance = self.normalization.covariance_to_metric(estimate.covariance)
         covariance = 0.5 * (covariance + covariance.T)
         return MetricEstimate(pose, covariance, estimate.spread / self.normalization.scale)
 
     def metric_poses(self, poses: torch.Tensor) -> torch.Tensor:
         """Particle poses (N, 4, 4) in map units -> (N, 4, 4) float64 metric camera poses, on the CPU."""
-        return map_to_metric(poses.double().cpu(), self.normalization)
+        return self.normalization.map_to_metric(poses.double().cpu())

@@ -6,8 +6,7 @@ import bisect
 
 import torch
 
-from locnerf.geometry.se3 import pose_inverse
-from services.poses import interpolate_pose
+from locnerf.geometry.se3 import interpolate_pose, pose_inverse
 
 
 class OdometryHistory:

@@ -21,6 +21,7 @@ from locnerf.errors import ConfigError
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus
+from locnerf.sim.events import SensorEvent
 from locnerf.sim.world import ProceduralWorld
 from services.ros2.config import Ros2Config
 from services.runtime import (
@@ -35,11 +36,10 @@ from services.runtime import (
 )
 from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
 from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
-from services.sensor_ingest.events import SensorEvent
 from services.sensor_ingest.prefetch import PrefetchedEvents
 from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
 from services.sensor_ingest.ros2_source import Ros2Ingest
-from services.sensor_ingest.scenario_source import ScenarioSourceConfig, build_source_scenario, scenario_events
+from services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
 from services.sensor_ingest.service import Pacer, event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from services.transport import Bus, Inbox, TransportConfig, open_bus
@@ -57,7 +57,7 @@ class IngestConfig(BaseModel):
     source: Literal["world", "replay", "scenario", "euroc", "camera", "ros2"] = Field(
         "world",
         description="Stream source: the procedural world along a trajectory, the replay of a posed image sequence, "
-        "the offline tracking experiment's scenario (same odometry model, images and kidnapping as `locnerf eval tracking`), "
+        "the offline tracking experiment's scenario (its path, images, kidnapping and seeds, as `locnerf eval tracking`), "
         "a EuRoC MAV folder (its stamps kept, odometry synthesised from its ground truth), "
         "a live camera / video file (images only; odometry comes from the robot on sensors/odom), "
         "or a ROS 2 robot's odometry and camera topics over rmw_zenoh (docs/ROS2.md).",
@@ -124,14 +124,13 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
     """
     if config.source == "ros2":
         raise ValueError("source = 'ros2' has no event stream: it relays the ROS 2 topics as they arrive (relay_ros2)")
-    generator = torch.Generator().manual_seed(config.seed)
     if config.source == "world":
-        return world_events(ProceduralWorld.default(), config.world, generator)
+        return world_events(ProceduralWorld.default(), config.world, config.seed)
     if config.source == "camera":
         return camera_events(config.camera)
     if config.source == "scenario":
-        # Images draw from seed + 1, as the offline run's image generator does.
-        return scenario_events(build_source_scenario(config.scenario, config.seed), torch.Generator().manual_seed(config.seed + 1))
+        return scenario_events(config.scenario, config.seed)
+    generator = torch.Generator().manual_seed(config.seed)
     if config.source == "euroc":
         if not config.euroc.path:
             raise ConfigError("source = 'euroc' needs euroc.path: the folder holding mav0/")

@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.errors import ConfigError
 from locnerf.render.camera import PinholeIntrinsics
-from services.sensor_ingest.events import ImageEvent
+from locnerf.sim.events import ImageEvent
 
 
 class CameraSourceConfig(BaseModel):

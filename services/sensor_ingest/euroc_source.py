@@ -3,8 +3,8 @@
 Images keep their EuRoC stamps (seconds since the epoch) and are undistorted with the camera's
 radial-tangential model (grey frames become three equal channels). locnerf runs no VIO of its own,
 so the odometry is synthesised from the ground-truth trajectory (interpolated geodesically) with the
-VIO-like noise and drift of :mod:`.synthetic_odometry`: of the camera (body pose · ``T_BS``) by
-default, or of the body (IMU) frame, as a real VIO reports it, with ``odometry_frame = "body"``;
+simulated VIO of :func:`locnerf.sim.sensors.simulate_odometry` (the evaluation's model): of the
+camera (body pose · ``T_BS``) by default, or of the body (IMU) frame, as a real VIO reports it, with ``odometry_frame = "body"``;
 the filter then needs ``loop.T_body_cam`` = :func:`euroc_T_body_cam`. The ground truth (camera) is
 published beside it. IMU samples are not read. Only frames inside the ground
 truth's time span are sent.
@@ -23,10 +23,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from locnerf.data.euroc import EurocCamera, EurocSequence
 from locnerf.errors import DatasetError
 from locnerf.geometry.frames import opencv_to_opengl
-from locnerf.geometry.se3 import pose_inverse
-from services.poses import interpolate_pose
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
-from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
+from locnerf.geometry.se3 import interpolate_pose, pose_inverse
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
+from locnerf.sim.sensors import VioConfig, simulate_odometry
 
 
 class EurocSourceConfig(BaseModel):
@@ -38,8 +37,7 @@ class EurocSourceConfig(BaseModel):
     camera: str = Field("cam0", description="Camera folder under mav0/.")
     groundtruth: str = Field("", description="Ground-truth file (ASL data.csv or TUM .txt); empty: found in the folder.")
     downscale: float = Field(1.0, ge=1, description="Image size divisor (area resize after undistortion).")
-    odometry_rate: float = Field(15.0, gt=0, description="Odometry (and ground-truth) messages per second.")
-    odometry: OdometryNoiseConfig = Field(default_factory=OdometryNoiseConfig, description="VIO noise and drift.")
+    vio: VioConfig = Field(default_factory=VioConfig, description="Odometry (and ground-truth) rate, drift and noise.")
     odometry_frame: Literal["camera", "body"] = Field(
         "camera",
         description="Frame whose motion the odometry reports: the camera (the filter's T_body_cam is identity) "
@@ -69,7 +67,7 @@ def euroc_events(sequence: EurocSequence, config: EurocSourceConfig, generator: 
     """Time-ordered ground truth and odometry (same stamps, truth first) and image events."""
     begin = max(sequence.truth_stamps[0], sequence.image_stamps[0])
     end = min(sequence.truth_stamps[-1], sequence.image_stamps[-1])
-    period = 1.0 / config.odometry_rate
+    period = 1.0 / config.vio.rate
     odometry_stamps = begin + period * np.arange(int(math.floor((end - begin) / period)) + 1)
     frames = np.flatnonzero((sequence.image_stamps >= begin) & (sequence.image_stamps <= end))
     if len(frames) == 0:
@@ -77,11 +75,11 @@ def euroc_events(sequence: EurocSequence, config: EurocSourceConfig, generator: 
     truth = camera_trajectory_at(sequence, odometry_stamps)
     moving = truth if config.odometry_frame == "camera" else truth @ pose_inverse(euroc_T_body_cam(sequence.camera))
     intrinsics = sequence.camera.intrinsics.scaled(1.0 / config.downscale)
-    odometry = SyntheticOdometry(config.odometry, generator)
+    odometry = simulate_odometry(moving, config.vio, generator)
     timeline = sorted([(float(s), 0, i) for i, s in enumerate(odometry_stamps)] + [(float(sequence.image_stamps[k]), 1, int(k)) for k in frames])
     for stamp, is_frame, index in timeline:
         if is_frame:
             yield ImageEvent(stamp, sequence.read_image(index, config.downscale), intrinsics)
             continue
         yield GroundTruthEvent(stamp, truth[index])
-        yield OdometryEvent(stamp, odometry.step(stamp, moving[index]))
+        yield OdometryEvent(stamp, odometry[index])

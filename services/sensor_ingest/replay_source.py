@@ -1,24 +1,23 @@
 """Replay of a posed image sequence (e.g. the lego test orbit) with odometry synthesised from its poses.
 
 Frame k is stamped ``k / frame_rate``. Between frames the camera moves along the geodesic between
-their poses; odometry (with the noise of :mod:`.synthetic_odometry`) and ground truth are emitted at
-``odometry_rate`` along that path. Poses leave as metric world-frame poses (the sequence's map-frame
-poses converted with its normalisation).
+their poses; odometry (the simulated VIO of :func:`locnerf.sim.sensors.simulate_odometry`, the
+evaluation's model) and ground truth are emitted at ``vio.rate`` along that path. Poses leave as
+metric world-frame poses (the sequence's map-frame poses converted with its normalisation).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 
-import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
-from services.poses import interpolate_pose, map_to_metric
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
-from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
+from locnerf.geometry.se3 import interpolate_pose
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent, rgb8
+from locnerf.sim.sensors import VioConfig, simulate_odometry
 
 
 class ReplaySourceConfig(BaseModel):
@@ -31,27 +30,29 @@ class ReplaySourceConfig(BaseModel):
     downscale: int | None = Field(None, ge=1, description="Image size divisor (None: the reader's default).")
     skip_missing: bool = Field(False, description="NeRF-synthetic: leave out frames whose image file is absent.")
     frame_rate: float = Field(5.0, gt=0, description="Frames per second of the replay.")
-    odometry_rate: float = Field(15.0, gt=0, description="Odometry (and ground-truth) messages per second.")
-    odometry: OdometryNoiseConfig = Field(default_factory=OdometryNoiseConfig, description="VIO noise and drift.")
+    vio: VioConfig = Field(default_factory=VioConfig, description="Odometry (and ground-truth) rate, drift and noise.")
 
 
 def replay_events(sequence: PosedImages, config: ReplaySourceConfig, generator: torch.Generator) -> Iterator[SensorEvent]:
     """Time-ordered ground truth and odometry (same stamps, truth first) and image events."""
     if len(sequence) < 2:
         raise DatasetError(f"{sequence.source}: a replay needs at least 2 frames, got {len(sequence)}")
-    poses = map_to_metric(sequence.T_world_cam.double(), sequence.normalization)
-    odometry = SyntheticOdometry(config.odometry, generator)
+    poses = sequence.normalization.map_to_metric(sequence.T_world_cam.double())
     end = (len(sequence) - 1) / config.frame_rate
-    stamps = [(i / config.odometry_rate, 0) for i in range(int(end * config.odometry_rate) + 1)]
-    stamps += [(k / config.frame_rate, 1) for k in range(len(sequence))]
-    for stamp, is_frame in sorted(stamps):
+    odometry_stamps = [i / config.vio.rate for i in range(int(end * config.vio.rate) + 1)]
+    truth = torch.stack([_pose_along(poses, stamp * config.frame_rate) for stamp in odometry_stamps])
+    odometry = simulate_odometry(truth, config.vio, generator)
+    timeline = [(stamp, 0, i) for i, stamp in enumerate(odometry_stamps)] + [(k / config.frame_rate, 1, k) for k in range(len(sequence))]
+    for stamp, is_frame, index in sorted(timeline):
         if is_frame:
-            index = round(stamp * config.frame_rate)
-            pixels = (sequence.images[index].clamp(0, 1) * 255 + 0.5).to(torch.uint8).numpy()
-            yield ImageEvent(stamp, np.ascontiguousarray(pixels), sequence.intrinsics)
+            yield ImageEvent(stamp, rgb8(sequence.images[index]), sequence.intrinsics)
             continue
-        position = min(stamp * config.frame_rate, len(sequence) - 1.0)
-        index = min(int(position), len(sequence) - 2)
-        pose = interpolate_pose(poses[index], poses[index + 1], position - index)
-        yield GroundTruthEvent(stamp, pose)
-        yield OdometryEvent(stamp, odometry.step(stamp, pose))
+        yield GroundTruthEvent(stamp, truth[index])
+        yield OdometryEvent(stamp, odometry[index])
+
+
+def _pose_along(poses: torch.Tensor, position: float) -> torch.Tensor:
+    """The pose (4, 4) at fractional frame index ``position`` on the geodesics between poses (N, 4, 4)."""
+    position = min(position, len(poses) - 1.0)
+    index = min(int(position), len(poses) - 2)
+    return interpolate_pose(poses[index], poses[index + 1], position - index)

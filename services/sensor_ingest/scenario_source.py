@@ -1,16 +1,15 @@
 """The offline tracking experiment's sensor data as a stream: the same scenario, served live.
 
-``locnerf eval tracking`` builds a :class:`~locnerf.eval.tracking_source.TrackingScenario` (true
-path on the odometry grid, drifting VIO from :func:`locnerf.sim.sensors.simulate_odometry`,
-images on the grid, optional kidnapping). This source builds that very scenario from the same
-configuration and seed and publishes it, so the live run (``locnerf eval tracking --live``) and the
-offline run see identical odometry, images and truth; there is no second noise model here.
+``locnerf eval tracking`` builds a :class:`~locnerf.sim.scenario.TrackingScenario` (true path on
+the odometry grid, drifting VIO, images on the grid, optional kidnapping). This source streams that
+very scenario from the same configuration and seed (:func:`locnerf.sim.stream.simulated_events`),
+so the live run (``locnerf eval tracking --live``) and the offline run see identical odometry,
+images and truth; there is no second noise model here.
 
 Two paths: ``sequence = "world"`` (the procedural world's figure-eight, images rendered with the
 simulated camera) or a data-set folder read by :func:`locnerf.data.read_dataset` (e.g. the lego
 test orbit, or any posed sequence the generic reader knows), replayed as a closed loop at a nominal
-speed. The camera is the body (``T_body_cam = I``). Every stamp yields its ground truth, then its
-odometry, then (on image stamps) the image.
+speed. The camera is the body (``T_body_cam = I``).
 """
 
 from __future__ import annotations
@@ -18,18 +17,16 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterator
 
-import numpy as np
-import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.detect import read_dataset
-from locnerf.eval.tracking_source import CameraPath, ScenarioConfig, SequencePath, TrackingScenario, WorldPath, build_scenario
-from locnerf.field.protocol import MapNormalization
+from locnerf.sim.events import SensorEvent
+from locnerf.sim.paths import CameraPath, SequencePath, WorldPath
+from locnerf.sim.scenario import ScenarioConfig
 from locnerf.sim.sensors import CameraConfig, VioConfig
+from locnerf.sim.stream import simulated_events
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld
-from services.poses import map_to_metric
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 
 WORLD = "world"
 
@@ -54,24 +51,11 @@ def camera_path(config: ScenarioSourceConfig) -> CameraPath:
     if config.sequence == WORLD:
         return WorldPath(ProceduralWorld.default(), FigureEightTrajectory(), CameraConfig())
     frames = read_dataset(config.sequence, split=config.split, downscale=config.downscale)
-    metric = dataclasses.replace(frames, T_world_cam=map_to_metric(frames.T_world_cam.double(), frames.normalization))
+    metric = dataclasses.replace(frames, T_world_cam=frames.normalization.map_to_metric(frames.T_world_cam.double()))
     return SequencePath(metric, config.speed, config.vio.rate)
 
 
-def build_source_scenario(config: ScenarioSourceConfig, seed: int) -> TrackingScenario:
-    """The offline scenario with truth in the metric world frame (what the wire carries)."""
-    scenario_config = ScenarioConfig(duration=config.duration, image_rate=config.image_rate, vio=config.vio, kidnap_at=config.kidnap_at, seed=seed)
-    return build_scenario(camera_path(config), scenario_config, MapNormalization())
-
-
-def scenario_events(scenario: TrackingScenario, generator: torch.Generator) -> Iterator[SensorEvent]:
-    """Ground truth and odometry at every stamp, then the image on image stamps (rendered lazily)."""
-    image_ticks = set(scenario.image_ticks)
-    intrinsics = scenario.path.intrinsics
-    for tick, stamp in enumerate(scenario.stamps.tolist()):
-        yield GroundTruthEvent(stamp, scenario.truth[tick])
-        yield OdometryEvent(stamp, scenario.odometry[tick])
-        if tick in image_ticks:
-            image = scenario.image(tick, generator).float().cpu()
-            pixels = (image.clamp(0, 1) * 255 + 0.5).to(torch.uint8).numpy()
-            yield ImageEvent(stamp, np.ascontiguousarray(pixels), intrinsics)
+def scenario_events(config: ScenarioSourceConfig, seed: int) -> Iterator[SensorEvent]:
+    """The offline scenario's events, truth in the metric world frame (what the wire carries)."""
+    run = ScenarioConfig(duration=config.duration, image_rate=config.image_rate, vio=config.vio, kidnap_at=config.kidnap_at, seed=seed)
+    return simulated_events(camera_path(config), run)

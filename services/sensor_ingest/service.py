@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterable, Iterator
 from locnerf.messages import keys
 from locnerf.messages.codec import encode, encode_image
 from locnerf.messages.schemas import ImageHeader, Odometry, PoseStamped
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 
 
 def event_message(robot_id: str, event: SensorEvent, camera_frame: str = "camera") -> tuple[str, bytes]:

@@ -15,15 +15,14 @@ from locnerf.eval.tracking import (
     StartConfig,
     TrackingRecord,
     error_statistics,
-    odometry_increment_in_map_units,
     run_tracking,
     search_region,
     settle_tick,
     summarize_tracking,
 )
-from locnerf.eval.tracking_source import ScenarioConfig, WorldPath, build_scenario
 from locnerf.filter import Localizer
-from locnerf.geometry import make_pose, so3_exp
+from locnerf.sim.paths import WorldPath
+from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld, WorldConfig
@@ -82,14 +81,6 @@ def test_error_statistics_over_a_range() -> None:
     assert stats["translation_median"] == pytest.approx(float(torch.tensor(range(1, 21), dtype=torch.float64).median()))
     assert stats["translation_p95"] == pytest.approx(19.05)
     assert stats["rotation_max_deg"] == 40.0
-
-
-def test_odometry_increment_is_scaled_to_map_units() -> None:
-    previous = make_pose(so3_exp(torch.tensor([0.0, 0.3, 0.0], dtype=torch.float64)), torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
-    step = make_pose(so3_exp(torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64)), torch.tensor([0.0, 0.0, -0.5], dtype=torch.float64))
-    increment = odometry_increment_in_map_units(previous, previous @ step, scale=3.0)
-    torch.testing.assert_close(increment[:3, :3], step[:3, :3])
-    torch.testing.assert_close(increment[:3, 3], torch.tensor([0.0, 0.0, -1.5], dtype=torch.float64))
 
 
 def test_reduced_world_run_converges_then_notices_the_kidnapping(caplog) -> None:

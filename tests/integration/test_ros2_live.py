@@ -28,12 +28,12 @@ from locnerf.ros2.types import (
     serialize,
     type_hash,
 )
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from locnerf.sim.world import ProceduralWorld
 from services.filter_loop.__main__ import FilterProcessConfig
 from services.filter_loop.service import FilterLoopConfig
 from services.ros2.config import Ros2Config
 from services.ros2.node import Ros2Node
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from services.sensor_ingest.service import Pacer
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from services.supervisor import write_config
@@ -118,7 +118,7 @@ class RosSensors:
         self.thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:
-        events = world_events(ProceduralWorld.default(), WorldSourceConfig(duration=120.0), torch.Generator().manual_seed(3))
+        events = world_events(ProceduralWorld.default(), WorldSourceConfig(duration=120.0), seed=3)
         for event in Pacer(1.0).paced(events, self.stop.is_set):
             stamp = EPOCH + event.stamp
             if isinstance(event, GroundTruthEvent):

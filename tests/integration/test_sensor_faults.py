@@ -19,10 +19,10 @@ from locnerf.geometry.metrics import translation_error
 from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import InitialPoseCommand
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 from locnerf.sim.world import ProceduralWorld
 from services.filter_loop.__main__ import FilterProcessConfig
 from services.filter_loop.service import FilterLoopConfig
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 from services.sensor_ingest.service import Pacer, event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from services.supervisor import write_config
@@ -85,7 +85,7 @@ def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
     wait_for(lambda: observer.workers() == ["w"], 120, "the filter and its worker", stack)
 
     world, source = ProceduralWorld.default(), WorldSourceConfig(duration=schedule.end)
-    start = next(e for e in world_events(world, source, torch.Generator().manual_seed(0)) if isinstance(e, GroundTruthEvent))
+    start = next(e for e in world_events(world, source, seed=0) if isinstance(e, GroundTruthEvent))
     covariance = torch.diag(torch.tensor([1e-4] * 3 + [1e-4] * 3, dtype=torch.float64))
     bus.publish(keys.key(ROBOT, keys.INITIAL_POSE), encode(InitialPoseCommand(stamp=0.0, T_world_cam=start.T_world_cam.tolist(), covariance=covariance.tolist())))
     wait_for(lambda: observer.status.state == "running", 30, "the initial pose command", stack)
@@ -101,7 +101,7 @@ def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
     }
 
     def stream() -> None:
-        for event in Pacer(1.0).paced(world_events(world, source, torch.Generator().manual_seed(0))):
+        for event in Pacer(1.0).paced(world_events(world, source, seed=0)):
             if isinstance(event, GroundTruthEvent):
                 truth[event.stamp] = event.T_world_cam
                 if schedule.tick(event.stamp) in marks:

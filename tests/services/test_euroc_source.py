@@ -15,12 +15,12 @@ from locnerf.data.euroc import read_euroc
 from locnerf.geometry.frames import opengl_to_opencv
 from locnerf.geometry.quaternion import quaternion_to_matrix
 from locnerf.geometry.se3 import pose_inverse
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
+from locnerf.sim.sensors import VioConfig
 from services.sensor_ingest.__main__ import IngestConfig, sensor_events
 from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_T_body_cam, euroc_events
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent
-from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig
 
-QUIET = OdometryNoiseConfig(rotation_noise=0.0, translation_noise=0.0, yaw_drift=0.0)
+QUIET = VioConfig(translation_drift=0.0, yaw_drift_rate=0.0, rotation_noise=0.0, translation_noise=0.0)
 
 
 @pytest.fixture
@@ -56,7 +56,7 @@ def test_frames_are_undistorted_rgb(euroc: Path) -> None:
 
 def test_events_are_ordered_and_odometry_follows_the_camera(euroc: Path, generator: torch.Generator) -> None:
     sequence = read_euroc(euroc)
-    events = list(euroc_events(sequence, EurocSourceConfig(odometry=QUIET), generator))
+    events = list(euroc_events(sequence, EurocSourceConfig(vio=QUIET), generator))
     stamps = [e.stamp for e in events]
     assert stamps == sorted(stamps)
     images = [e for e in events if isinstance(e, ImageEvent)]
@@ -103,7 +103,7 @@ def test_ground_truth_outside_the_images_is_refused(euroc: Path, tmp_path: Path)
 def test_body_odometry_moves_the_camera_through_t_bs(euroc: Path, generator: torch.Generator) -> None:
     """With odometry of the body, T_body_cam (T_BS in OpenGL axes) carries it to the camera's motion."""
     sequence = read_euroc(euroc)
-    events = list(euroc_events(sequence, EurocSourceConfig(odometry=QUIET, odometry_frame="body"), generator))
+    events = list(euroc_events(sequence, EurocSourceConfig(vio=QUIET, odometry_frame="body"), generator))
     truth = [e.T_world_cam for e in events if isinstance(e, GroundTruthEvent)]
     odometry = [e.T_odom_body for e in events if isinstance(e, OdometryEvent)]
     T_body_cam = euroc_T_body_cam(sequence.camera)

@@ -27,15 +27,14 @@ from locnerf.messages.schemas import (
     PoseEstimate,
     UpdateRequest,
 )
+from locnerf.sim.events import GroundTruthEvent
 from locnerf.sim.world import ProceduralWorld
-from services.poses import convert_covariance, increment_to_map, map_to_metric, metric_to_map
 from services.filter_loop.__main__ import FilterProcessConfig, build_loop
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
 from services.filter_loop.state_file import SavedPose
 from services.filter_loop.state_writer import StateWriter
 from services.nerf_worker.service import NerfWorker
-from services.sensor_ingest.events import GroundTruthEvent
 from services.sensor_ingest.service import event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 
@@ -88,7 +87,7 @@ def test_global_localization_converges_and_tracks(world):
     harness = Harness(world)
     harness.add_worker("w1")
     truth, errors = None, []
-    for event in world_events(world, WorldSourceConfig(duration=10.0), torch.Generator().manual_seed(1)):
+    for event in world_events(world, WorldSourceConfig(duration=10.0), seed=1):
         harness.now = event.stamp
         if isinstance(event, GroundTruthEvent):
             truth = event.T_world_cam
@@ -103,7 +102,7 @@ def test_global_localization_converges_and_tracks(world):
     assert errors[0][0] > 0.5, "the start should be lost (uniform over the room)"
     tracked = errors[-45:]  # the last 3 s
     assert max(e[0] for e in tracked) < 0.15 and max(e[1] for e in tracked) < 3.0, tracked
-    assert len(harness.poses) == 150  # one pose per odometry message
+    assert len(harness.poses) == 151  # one pose per odometry message: 0 .. 10 s at 15 Hz, both ends (the simulator's grid)
 
 
 def _odometry(stamp: float, pose: torch.Tensor) -> bytes:
@@ -361,11 +360,11 @@ def test_map_frame_conversions_invert_each_other(generator):
         scale=0.25,
     )
     pose = se3_exp(torch.randn(6, dtype=torch.float64, generator=generator))
-    torch.testing.assert_close(map_to_metric(metric_to_map(pose, normalization), normalization), pose)
-    relative = pose_inverse(metric_to_map(pose, normalization)) @ metric_to_map(pose @ se3_exp(torch.tensor([0, 0, 0, 1.0, 0, 0], dtype=torch.float64)), normalization)
+    torch.testing.assert_close(normalization.map_to_metric(normalization.metric_to_map(pose)), pose)
+    relative = pose_inverse(normalization.metric_to_map(pose)) @ normalization.metric_to_map(pose @ se3_exp(torch.tensor([0, 0, 0, 1.0, 0, 0], dtype=torch.float64)))
     assert float(relative[:3, 3].norm()) == pytest.approx(0.25)
     covariance = torch.eye(6, dtype=torch.float64)
-    assert convert_covariance(covariance, normalization, to_map=True).diagonal().tolist() == pytest.approx([1, 1, 1, 0.0625, 0.0625, 0.0625])
+    assert normalization.covariance_to_map(covariance).diagonal().tolist() == pytest.approx([1, 1, 1, 0.0625, 0.0625, 0.0625])
 
 
 def test_images_are_replaced_by_newer_ones_before_an_update_starts(world, generator):
@@ -394,8 +393,8 @@ def test_pose_is_the_carried_estimate_and_the_particles_follow_after_it(world):
         harness.collect(loop.handle_odometry(_odometry(step / 15, odometry)))
     # the second increment's prediction is still pending; the first one was applied on arrival of the second
     assert loop.localizer.particles.poses.shape == before.shape
-    in_map = increment_to_map(increment, world.normalization)
-    expected = map_to_metric(anchor.pose @ in_map @ in_map, world.normalization)
+    in_map = world.normalization.increment_to_map(increment)
+    expected = world.normalization.map_to_metric(anchor.pose @ in_map @ in_map)
     published = torch.tensor(harness.poses[-1].T_world_cam, dtype=torch.float64)
     assert torch.allclose(published, expected, atol=1e-9)
     moved_once = loop.localizer.particles.poses.clone()
@@ -404,12 +403,12 @@ def test_pose_is_the_carried_estimate_and_the_particles_follow_after_it(world):
     loop.predict_pending()  # nothing left to apply
     # The particles' own mean agrees with the carried pose up to the noise's sampling scatter:
     # 3 noise draws of σ_t = 0.01 map units per axis over 300 particles (1e-3 per axis); tolerance 0.01.
-    particle_mean = map_to_metric(loop.localizer.estimate().pose, world.normalization)
+    particle_mean = world.normalization.map_to_metric(loop.localizer.estimate().pose)
     assert float(translation_error(particle_mean, published)) < 0.01 * world.normalization.scale
     # and the published covariance is the anchor's carried by the three steps (noise only, then two increments)
     sigma = loop.localizer.noise_sigma()
     carried = carry_estimate(carry_estimate(carry_estimate(anchor, None, sigma), in_map, sigma), in_map, sigma)
-    expected_covariance = convert_covariance(carried.covariance, world.normalization, to_map=False)
+    expected_covariance = world.normalization.covariance_to_metric(carried.covariance)
     assert torch.allclose(torch.tensor(harness.poses[-1].covariance, dtype=torch.float64), expected_covariance, atol=1e-12)
 
 
@@ -431,7 +430,7 @@ def test_a_merge_marks_the_estimate_stale_and_the_next_pose_reflects_it(world, g
     fresh = loop.localizer.estimate()
     harness.collect(loop.handle_odometry(_odometry(2 / 15, eye)))
     expected = carry_estimate(fresh, None, loop.localizer.noise_sigma())
-    assert torch.allclose(torch.tensor(harness.poses[-1].T_world_cam, dtype=torch.float64), map_to_metric(expected.pose, world.normalization), atol=1e-12)
+    assert torch.allclose(torch.tensor(harness.poses[-1].T_world_cam, dtype=torch.float64), world.normalization.map_to_metric(expected.pose), atol=1e-12)
     assert not loop.refresh_estimate()
 
 

@@ -18,14 +18,14 @@ from locnerf.geometry.se3 import pose_inverse, se3_exp
 from locnerf.messages.codec import decode, decode_image
 from locnerf.messages.schemas import Odometry, UpdateRequest
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
+from locnerf.sim.sensors import VioConfig, simulate_odometry
 from locnerf.sim.world import ProceduralWorld
 from services.nerf_worker.service import NerfWorker, RequestError
 from services.sensor_ingest.__main__ import IngestConfig, sensor_events
 from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
 from services.sensor_ingest.service import Pacer, event_message
-from services.sensor_ingest.synthetic_odometry import OdometryNoiseConfig, SyntheticOdometry
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 
 
@@ -65,32 +65,34 @@ def test_worker_rejects_pixels_outside_the_image_and_non_rigid_poses(world, gene
         NerfWorker(world, "w").handle(request.model_copy(update={"poses": sheared}))
 
 
+QUIET_VIO = VioConfig(translation_drift=0.0, yaw_drift_rate=0.0, rotation_noise=0.0, translation_noise=0.0)
+
+
 def test_noiseless_odometry_reproduces_the_true_increments(generator):
-    odometry = SyntheticOdometry(OdometryNoiseConfig(rotation_noise=0, translation_noise=0, yaw_drift=0), generator)
-    truths = [torch.eye(4, dtype=torch.float64) for _ in range(3)]
-    truths[1][:3, 3] = torch.tensor([1.0, 0.0, 0.0])
-    truths[2][:3, 3] = torch.tensor([1.0, 2.0, 0.5])
-    out = [odometry.step(t, pose) for t, pose in zip((0.0, 0.1, 0.2), truths)]
+    """The ingest's odometry model (locnerf.sim.sensors, the evaluation's; the random-walk model it replaced had its own test here)."""
+    truths = torch.eye(4, dtype=torch.float64).repeat(3, 1, 1)
+    truths[1, :3, 3] = torch.tensor([1.0, 0.0, 0.0])
+    truths[2, :3, 3] = torch.tensor([1.0, 2.0, 0.5])
+    out = simulate_odometry(truths, QUIET_VIO, generator)
     torch.testing.assert_close(pose_inverse(out[0]) @ out[2], pose_inverse(truths[0]) @ truths[2])
-    with pytest.raises(ValueError, match="must increase"):
-        odometry.step(0.2, truths[2])
+    with pytest.raises(ValueError, match=r"start"):
+        simulate_odometry(truths, QUIET_VIO, generator, start=2 * torch.eye(4, dtype=torch.float64))
 
 
 def test_yaw_drift_accumulates_at_its_rate(generator):
     rate = math.radians(2.0)
-    odometry = SyntheticOdometry(OdometryNoiseConfig(rotation_noise=0, translation_noise=0, yaw_drift=rate), generator)
-    for step in range(11):
-        last = odometry.step(step * 0.1, torch.eye(4, dtype=torch.float64))
+    still = torch.eye(4, dtype=torch.float64).repeat(11, 1, 1)  # 1 s at 10 Hz
+    last = simulate_odometry(still, QUIET_VIO.model_copy(update={"rate": 10.0, "yaw_drift_rate": rate}), generator)[-1]
     assert math.isclose(math.atan2(last[0, 2], last[0, 0]), rate * 1.0, rel_tol=1e-9)
 
 
-def test_world_stream_is_time_ordered_with_the_configured_rates(world, generator):
-    config = WorldSourceConfig(duration=1.0, odometry_rate=15.0, camera_rate=5.0)
-    events = list(world_events(world, config, generator))
+def test_world_stream_is_time_ordered_with_the_configured_rates(world):
+    config = WorldSourceConfig(duration=1.0, image_rate=5.0, vio=VioConfig(rate=15.0))
+    events = list(world_events(world, config, seed=0))
     stamps = [e.stamp for e in events]
     assert stamps == sorted(stamps)
     counts = {kind: sum(isinstance(e, kind) for e in events) for kind in (OdometryEvent, GroundTruthEvent, ImageEvent)}
-    assert counts == {OdometryEvent: 15, GroundTruthEvent: 15, ImageEvent: 5}
+    assert counts == {OdometryEvent: 16, GroundTruthEvent: 16, ImageEvent: 6}  # the simulator's grid: 0 .. 1 s, both ends
     key, payload = event_message("r", next(e for e in events if isinstance(e, ImageEvent)))
     header, pixels = decode_image(payload)
     assert key == "locnerf/r/sensors/image" and pixels.shape == (120, 160, 3) and header.intrinsics == world.default_intrinsics
@@ -98,11 +100,16 @@ def test_world_stream_is_time_ordered_with_the_configured_rates(world, generator
     assert key == "locnerf/r/sensors/odom" and decode(payload, Odometry).stamp == 0.0
 
 
-def test_world_stream_with_distinct_frames_sends_the_first_ones_again(world, generator):
-    config = WorldSourceConfig(duration=1.0, odometry_rate=15.0, camera_rate=5.0, distinct_frames=2)
-    frames = [e.pixels for e in world_events(world, config, generator) if isinstance(e, ImageEvent)]
-    assert len(frames) == 5 and not (frames[0] == frames[1]).all()
-    assert all(frames[k] is frames[k % 2] for k in range(2, 5))
+def test_world_stream_with_distinct_frames_sends_the_first_ones_again(world):
+    config = WorldSourceConfig(duration=1.0, image_rate=5.0, vio=VioConfig(rate=15.0), distinct_frames=2)
+    frames = [e.pixels for e in world_events(world, config, seed=0) if isinstance(e, ImageEvent)]
+    assert len(frames) == 6 and not (frames[0] == frames[1]).all()
+    assert all(frames[k] is frames[k % 2] for k in range(2, 6))
+
+
+def test_world_stream_without_images_is_odometry_only(world):
+    events = list(world_events(world, WorldSourceConfig(duration=2.0, image_rate=0.0), seed=0))
+    assert len(events) == 2 * 31 and not any(isinstance(e, ImageEvent) for e in events)
 
 
 def test_pacer_waits_for_scaled_stamps():
@@ -132,8 +139,8 @@ def _sequence(count: int) -> PosedImages:
 
 def test_replay_interpolates_between_frames_in_metres(generator):
     sequence = _sequence(3)
-    quiet = OdometryNoiseConfig(rotation_noise=0, translation_noise=0, yaw_drift=0)
-    events = list(replay_events(sequence, ReplaySourceConfig(frame_rate=2.0, odometry_rate=4.0, odometry=quiet), generator))
+    quiet = QUIET_VIO.model_copy(update={"rate": 4.0})
+    events = list(replay_events(sequence, ReplaySourceConfig(frame_rate=2.0, vio=quiet), generator))
     images = [e for e in events if isinstance(e, ImageEvent)]
     truth = {e.stamp: e.T_world_cam for e in events if isinstance(e, GroundTruthEvent)}
     assert [e.stamp for e in images] == [0.0, 0.5, 1.0] and images[1].pixels.shape == (6, 8, 3)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import torch
 
-from locnerf.eval.tracking_source import ScenarioConfig, WorldPath, build_scenario
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
+from locnerf.sim.paths import WorldPath
+from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld
 from services.sensor_ingest.__main__ import IngestConfig, sensor_events
-from services.sensor_ingest.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from services.sensor_ingest.scenario_source import ScenarioSourceConfig
 
 VIO = VioConfig(translation_drift=0.02, translation_noise=3e-3)

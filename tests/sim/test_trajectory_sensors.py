@@ -1,4 +1,4 @@
-"""Trajectories, the VIO and camera simulators, and the synthetic event stream."""
+"""Trajectories, the VIO and camera simulators, and the simulated event stream."""
 
 from __future__ import annotations
 
@@ -9,8 +9,12 @@ import torch
 
 from locnerf.geometry import pose_inverse, rotation_error_deg, se3_log
 from locnerf.geometry.validation import InvalidPoseError
+from locnerf.field.protocol import MapNormalization
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
+from locnerf.sim.paths import WorldPath
+from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig, VioConfig, observe_image, simulate_odometry
-from locnerf.sim.stream import ImageEvent, OdometryEvent, SyntheticStream, SyntheticStreamConfig
+from locnerf.sim.stream import simulated_events
 from locnerf.sim.trajectory import FigureEightTrajectory, TrajectoryConfig
 from locnerf.sim.world import ProceduralWorld
 
@@ -122,10 +126,19 @@ def test_camera_noise_and_gain_follow_the_configuration(world, trajectory):
     assert (noisy - clean)[inside].std() == pytest.approx(0.02, rel=0.02)
 
 
+SHORT_RUN = ScenarioConfig(seed=2, duration=2.0, image_rate=5.0)
+
+
+def payload(event: GroundTruthEvent | OdometryEvent | ImageEvent) -> torch.Tensor:
+    """What an event carries: the image's pixels, the odometry pose or the true pose."""
+    if isinstance(event, ImageEvent):
+        return torch.from_numpy(event.pixels)
+    return event.T_odom_body if isinstance(event, OdometryEvent) else event.T_world_cam
+
+
 @pytest.fixture(scope="module")
 def short_run(world, trajectory) -> list:
-    config = SyntheticStreamConfig(seed=2, duration=2.0, camera=CameraConfig(rate=4.0))
-    return list(SyntheticStream(world, trajectory, config))
+    return list(simulated_events(WorldPath(world, trajectory, CameraConfig()), SHORT_RUN))
 
 
 def test_stream_is_time_ordered_at_the_configured_rates(short_run):
@@ -133,8 +146,9 @@ def test_stream_is_time_ordered_at_the_configured_rates(short_run):
     assert stamps == sorted(stamps)
     odometry = [e for e in short_run if isinstance(e, OdometryEvent)]
     images = [e for e in short_run if isinstance(e, ImageEvent)]
-    assert len(odometry) == 31 and len(images) == 9  # 0..2 s inclusive at 15 Hz and 4 Hz
-    assert [e.stamp for e in images] == pytest.approx([k / 4 for k in range(9)])
+    # 0..2 s inclusive at 15 Hz and 5 Hz (images lie on the odometry grid: a rate that divides 15 Hz keeps them exact)
+    assert len(odometry) == 31 and len(images) == 11
+    assert [e.stamp for e in images] == pytest.approx([k / 5 for k in range(11)])
     # At a shared stamp the odometry comes first, so a filter has predicted before it corrects.
     first_image = next(i for i, e in enumerate(short_run) if isinstance(e, ImageEvent))
     assert isinstance(short_run[first_image - 1], OdometryEvent) and short_run[first_image - 1].stamp == 0.0
@@ -142,18 +156,21 @@ def test_stream_is_time_ordered_at_the_configured_rates(short_run):
 
 def test_stream_images_are_the_world_seen_from_the_true_pose_and_reproducible(world, trajectory, short_run):
     image = next(e for e in short_run if isinstance(e, ImageEvent) and e.stamp == 1.0)
-    assert torch.equal(image.T_world_cam, trajectory.pose_at(1.0))
-    clean = world.render_image(image.T_world_cam).float()
-    assert (image.image - clean).abs().mean() < 0.02
-    again = list(SyntheticStream(world, trajectory, SyntheticStreamConfig(seed=2, duration=2.0, camera=CameraConfig(rate=4.0))))
-    payload = lambda event: event.image if isinstance(event, ImageEvent) else event.T_odom_body  # noqa: E731
-    assert len(again) == len(short_run) and all(torch.equal(payload(a), payload(b)) for a, b in zip(short_run, again))
+    truth = next(e for e in short_run if isinstance(e, GroundTruthEvent) and e.stamp == 1.0)
+    torch.testing.assert_close(truth.T_world_cam, trajectory.pose_at(1.0), atol=1e-12, rtol=0)
+    clean = world.render_image(truth.T_world_cam).float()
+    assert (torch.from_numpy(image.pixels).float() / 255 - clean).abs().mean() < 0.02
+    again = list(simulated_events(WorldPath(world, trajectory, CameraConfig()), SHORT_RUN))
+    assert len(again) == len(short_run) and all(type(a) is type(b) and torch.equal(payload(a), payload(b)) for a, b in zip(short_run, again))
 
 
 def test_stream_applies_the_camera_extrinsic_and_refuses_a_bad_one(world, trajectory):
     mount = [[1.0, 0, 0, 0.1], [0, 1.0, 0, 0.0], [0, 0, 1.0, 0.0], [0, 0, 0, 1.0]]
-    config = SyntheticStreamConfig(duration=0.1, camera=CameraConfig(T_body_cam=mount))
-    image = next(e for e in SyntheticStream(world, trajectory, config) if isinstance(e, ImageEvent))
-    assert torch.allclose(image.T_world_cam, trajectory.pose_at(0.0) @ torch.tensor(mount, dtype=torch.float64))
+    path = WorldPath(world, trajectory, CameraConfig(T_body_cam=mount))
+    perfect = VioConfig(translation_drift=0.0, yaw_drift_rate=0.0, **QUIET)
+    scenario = build_scenario(path, ScenarioConfig(duration=0.5, vio=perfect), MapNormalization())
+    # The truth is the camera's pose, the odometry the body's (the trajectory's).
+    assert torch.allclose(scenario.truth[0], trajectory.pose_at(0.0) @ torch.tensor(mount, dtype=torch.float64))
+    torch.testing.assert_close(scenario.odometry, trajectory.poses_at(scenario.stamps), atol=1e-9, rtol=0)
     with pytest.raises(InvalidPoseError, match="T_body_cam"):
-        SyntheticStream(world, trajectory, SyntheticStreamConfig(camera=CameraConfig(T_body_cam=[[2.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])))
+        WorldPath(world, trajectory, CameraConfig(T_body_cam=[[2.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))

@@ -1,4 +1,9 @@
-"""What a source yields: a time-ordered stream of stamped sensor events."""
+"""What a sensor stream yields: stamped odometry, images and ground truth, in time order.
+
+The one set of sensor events of locnerf: the simulator (:mod:`locnerf.sim.stream`) and every
+source of the ingest service (replays, EuRoC, a camera, ROS 2) produce them, and the ingest turns
+them into wire messages. Poses are float64 and metric, in the data set's world frame.
+"""
 
 from __future__ import annotations
 
@@ -36,3 +41,10 @@ class GroundTruthEvent:
 
 
 SensorEvent = OdometryEvent | ImageEvent | GroundTruthEvent
+
+
+def rgb8(image: torch.Tensor) -> np.ndarray:
+    """An image (H, W, 3) of [0, 1] colours -> contiguous (H, W, 3) uint8, rounded to the nearest level."""
+    if image.ndim != 3 or image.shape[-1] != 3:
+        raise ValueError(f"image: expected shape (H, W, 3), got {tuple(image.shape)}")
+    return np.ascontiguousarray((image.float().cpu().clamp(0, 1) * 255 + 0.5).to(torch.uint8).numpy())

@@ -1,4 +1,4 @@
-"""Tracking scenarios: odometry on the grid, the unseen kidnapping, sequence replay."""
+"""Simulated runs: odometry on the grid, the unseen kidnapping, sequence replay, segments."""
 
 from __future__ import annotations
 
@@ -8,10 +8,11 @@ import pytest
 import torch
 
 from locnerf.data import PosedImages, read_nerf_synthetic
-from locnerf.eval.tracking_source import ScenarioConfig, SequencePath, WorldPath, build_scenario, dataset_to_map
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import make_pose, pose_inverse, rotation_error_deg, so3_exp, translation_error
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.sim.paths import SequencePath, WorldPath
+from locnerf.sim.scenario import ScenarioConfig, build_scenario, scenario_segments
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld
@@ -58,15 +59,6 @@ def test_image_rate_above_odometry_rate_is_refused() -> None:
 def test_kidnapping_after_the_run_is_refused() -> None:
     with pytest.raises(ValueError, match="kidnap_at 5.0 s"):
         build_scenario(world_path(), ScenarioConfig(duration=2.0, kidnap_at=5.0), MapNormalization())
-
-
-def test_dataset_to_map_scales_then_moves() -> None:
-    turn = make_pose(so3_exp(torch.tensor([0.0, 0.5, 0.0], dtype=torch.float64)), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
-    normalization = MapNormalization(T_map_dataset=turn.tolist(), scale=2.0)
-    pose = make_pose(so3_exp(torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)), torch.tensor([0.5, -1.0, 0.25], dtype=torch.float64))
-    mapped = dataset_to_map(pose[None], normalization)[0]
-    torch.testing.assert_close(mapped[:3, 3], turn[:3, :3] @ (2.0 * pose[:3, 3]) + turn[:3, 3])
-    torch.testing.assert_close(mapped[:3, :3], turn[:3, :3] @ pose[:3, :3])
 
 
 def tiny_sequence(count: int = 6) -> PosedImages:
@@ -116,3 +108,25 @@ def test_lego_orbit_replays_as_a_closed_loop() -> None:
     torch.testing.assert_close(scenario.truth[scenario.image_ticks], frames.T_world_cam[:31])
     # The white background of the RGBA frames is kept: corners are white.
     assert float(frames.images[:, 0, 0].min()) > 0.99
+
+
+@pytest.mark.parametrize("segment_ticks", [7, 10])
+def test_segments_continue_the_odometry_and_join_into_the_whole_run(segment_ticks: int) -> None:
+    """Without white noise the run is deterministic, so its segments (the kidnapping at tick 30
+    inside one, or at the start of one) must give exactly the whole run: truth, drifting odometry,
+    image stamps and the jump."""
+    drifting = VioConfig(translation_drift=0.03, yaw_drift_rate=0.05, rotation_noise=0.0, translation_noise=0.0)
+    config = ScenarioConfig(duration=4.0, image_rate=3.0, vio=drifting, kidnap_at=2.0)
+    whole = build_scenario(world_path(), config, MapNormalization())
+    segments = list(scenario_segments(world_path(), config, MapNormalization(), segment_ticks=segment_ticks))
+    assert [len(s.stamps) for s in segments[:-1]] == [segment_ticks] * (len(segments) - 1)
+    torch.testing.assert_close(torch.cat([s.truth for s in segments]), whole.truth, atol=1e-12, rtol=0)
+    torch.testing.assert_close(torch.cat([s.odometry for s in segments]), whole.odometry, atol=1e-9, rtol=0)
+    offsets = [segment_ticks * i for i in range(len(segments))]
+    assert [o + t for o, s in zip(offsets, segments) for t in s.image_ticks] == whole.image_ticks
+    assert [o + s.kidnap_tick for o, s in zip(offsets, segments) if s.kidnap_tick is not None] == [whole.kidnap_tick] == [30]
+
+
+def test_a_segment_needs_a_stamp() -> None:
+    with pytest.raises(ValueError, match="segment_ticks 0"):
+        scenario_segments(world_path(), ScenarioConfig(duration=1.0), MapNormalization(), segment_ticks=0)

@@ -1,0 +1,160 @@
+"""Camera paths a simulated run follows: the procedural world's figure-eight or a posed image sequence.
+
+- :class:`WorldPath`: the figure-eight of :mod:`locnerf.sim.trajectory` in the procedural world,
+  images rendered at the true camera pose with the simulated camera's noise and gain; the camera
+  sits on the body at ``CameraConfig.T_body_cam``.
+- :class:`SequencePath`: a posed image sequence (e.g. the lego test orbit). Frame ``j`` gets the
+  stamp ``j · Δ``, where ``Δ`` is the mean distance between consecutive frames divided by the
+  nominal speed, rounded to a whole number of odometry periods (so every frame lies on the grid);
+  between frames the pose follows the SE(3) geodesic. The sequence is treated as a closed loop,
+  and the camera is the body.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import torch
+
+from locnerf.data import PosedImages
+from locnerf.geometry import pose_inverse, se3_exp, se3_log
+from locnerf.geometry.validation import validate_poses
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.sim.sensors import CameraConfig, observe_image
+from locnerf.sim.trajectory import FigureEightTrajectory
+from locnerf.sim.world import ProceduralWorld
+
+
+class CameraPath(Protocol):
+    """A closed camera path with an image for every pose the run asks for."""
+
+    @property
+    def duration(self) -> float:
+        """Length of one loop, seconds."""
+
+    @property
+    def intrinsics(self) -> PinholeIntrinsics:
+        """The camera of the images."""
+
+    @property
+    def T_body_cam(self) -> torch.Tensor:
+        """(4, 4) float64 pose of the camera in the body whose motion the odometry reports."""
+
+    def poses_at(self, times: torch.Tensor) -> torch.Tensor:
+        """True ``T_world_cam`` (N, 4, 4) float64, metric data-set frame, at times (N,) seconds."""
+
+    @property
+    def kidnap_shift(self) -> float:
+        """How far along the path (seconds) a kidnapping moves the camera: about half a loop."""
+
+    def image_times(self, rate: float, odom_rate: float, duration: float) -> torch.Tensor:
+        """(I,) float64 stamps on the odometry grid where images are taken, about ``rate`` per second."""
+
+    def image_at(self, time: float, pose: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """Image (H, W, 3) float32 in [0, 1] seen at path time ``time`` from ``pose`` (4, 4)."""
+
+
+def _grid_times(rate: float, odom_rate: float, duration: float) -> torch.Tensor:
+    """Stamps about ``rate`` per second, each rounded to the odometry grid, without repeats."""
+    count = math.floor(duration * rate + 1e-9) + 1
+    ticks = torch.round(torch.arange(count, dtype=torch.float64) / rate * odom_rate)
+    return torch.unique(ticks) / odom_rate
+
+
+class WorldPath:
+    """The figure-eight through the procedural world: the trajectory is the body's, the camera is
+    mounted on it at ``camera.T_body_cam``.
+
+    Raises:
+        InvalidPoseError: ``camera.T_body_cam`` is not a rigid transform.
+    """
+
+    def __init__(self, world: ProceduralWorld, trajectory: FigureEightTrajectory, camera: CameraConfig) -> None:
+        self.world = world
+        self.trajectory = trajectory
+        self.camera = camera
+        self._T_body_cam = torch.tensor(camera.T_body_cam, dtype=torch.float64)
+        validate_poses(self._T_body_cam, name="camera.T_body_cam")
+
+    @property
+    def duration(self) -> float:
+        return self.trajectory.duration
+
+    @property
+    def intrinsics(self) -> PinholeIntrinsics:
+        return self.world.default_intrinsics
+
+    @property
+    def kidnap_shift(self) -> float:
+        return self.trajectory.duration / 2
+
+    @property
+    def T_body_cam(self) -> torch.Tensor:
+        return self._T_body_cam
+
+    def poses_at(self, times: torch.Tensor) -> torch.Tensor:
+        return self.trajectory.poses_at(times) @ self._T_body_cam
+
+    def image_times(self, rate: float, odom_rate: float, duration: float) -> torch.Tensor:
+        return _grid_times(rate, odom_rate, duration)
+
+    def image_at(self, time: float, pose: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        return observe_image(self.world.render_image, pose, time, self.intrinsics, self.camera, generator)
+
+
+class SequencePath:
+    """A posed image sequence replayed as a closed loop at a nominal speed.
+
+    Args:
+        frames: the sequence's images and poses (map frame of its data set, metric).
+        speed: nominal camera speed, data-set units per second.
+        odom_rate: odometry rate, Hz; frame stamps are whole multiples of its period.
+    """
+
+    def __init__(self, frames: PosedImages, speed: float, odom_rate: float) -> None:
+        if len(frames) < 2:
+            raise DatasetError(f"{frames.source}: {len(frames)} frame(s), expected at least 2 to follow a path")
+        if speed <= 0:
+            raise ValueError(f"speed {speed}: expected a positive nominal speed (units per second)")
+        self.frames = frames
+        poses = frames.T_world_cam.double()
+        steps = (poses[1:, :3, 3] - poses[:-1, :3, 3]).norm(dim=-1)
+        self.ticks_per_frame = max(1, round(float(steps.mean()) / speed * odom_rate))
+        self.frame_period = self.ticks_per_frame / odom_rate
+        closed = torch.cat([poses, poses[:1]])
+        self._tangents = se3_log(pose_inverse(closed[:-1]) @ closed[1:])  # (K, 6) frame j -> j + 1
+
+    @property
+    def duration(self) -> float:
+        return len(self.frames) * self.frame_period
+
+    @property
+    def intrinsics(self) -> PinholeIntrinsics:
+        return self.frames.intrinsics
+
+    @property
+    def kidnap_shift(self) -> float:
+        return (len(self.frames) // 2) * self.frame_period
+
+    @property
+    def T_body_cam(self) -> torch.Tensor:
+        return torch.eye(4, dtype=torch.float64)
+
+    def poses_at(self, times: torch.Tensor) -> torch.Tensor:
+        phase = torch.remainder(torch.as_tensor(times, dtype=torch.float64) / self.frame_period, len(self.frames))
+        index = phase.floor().long().clamp(max=len(self.frames) - 1)
+        fraction = (phase - index)[:, None]
+        return self.frames.T_world_cam.double()[index] @ se3_exp(fraction * self._tangents[index])
+
+    def image_times(self, rate: float, odom_rate: float, duration: float) -> torch.Tensor:
+        stride = max(1, round(1.0 / (rate * self.frame_period)))
+        count = math.floor(duration / (stride * self.frame_period) + 1e-9) + 1
+        return torch.arange(count, dtype=torch.float64) * stride * self.frame_period
+
+    def image_at(self, time: float, pose: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        phase = time / self.frame_period
+        index = round(phase)
+        if abs(phase - index) > 1e-6:
+            raise ValueError(f"image time {time} s is between frames (period {self.frame_period} s): expected a frame stamp")
+        return self.frames.images[index % len(self.frames)]
