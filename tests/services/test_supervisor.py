@@ -17,7 +17,7 @@ from services.supervisor import Supervisor, config_toml, loopback_environment, s
 from services.transport import TransportConfig
 from tests.services.helpers import wait_until
 
-# A child that writes a line when SIGTERM arrives (so the test sees the order), then exits 3.
+# A child that writes a line when SIGTERM arrives, then exits 3.
 POLITE = (
     "import signal, sys, time\n"
     "def stop(*_):\n"
