@@ -396,11 +396,12 @@ class FilterLoop:
             return []
         if carry is not None:
             carry = increment_to_map(carry, self.normalization)
-        snapshot = self.localizer.snapshot(carry)
-        measurement = self.localizer.config.measurement
         intrinsics = header.intrinsics
         image = torch.from_numpy(pixels).float() / 255.0
-        chosen = sample_pixels_of_image(image, measurement, self.localizer.generator)
+        self.localizer.seed_from_image(image, intrinsics)
+        snapshot = self.localizer.snapshot(carry)
+        measurement = self.localizer.config.measurement
+        chosen = sample_pixels_of_image(image, measurement, self.localizer.generator, measurement.pixels_for(len(snapshot.ids)))
         colours = observed_colours(image, chosen)
         kept = image if self.localizer.keyframes is not None else None
         return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept))
