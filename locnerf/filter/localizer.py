@@ -385,7 +385,8 @@ class Localizer:
 
     # ----------------------------------------------------------------- synchronous use
     def update(self, image: torch.Tensor, intrinsics: PinholeIntrinsics, render_rays: RenderRays) -> MergeReport:
-        """One complete update on an image (H, W, 3) in [0, 1]: snapshot, render, merge."""
+        """One complete update on an image (H, W, 3) in [0, 1]: the keyframe start when one is
+        pending, snapshot, render (``measurement.pixels_for`` the particle count), merge."""
         if image.ndim != 3 or image.shape[-1] != 3:
             raise ValueError(f"image: expected shape (H, W, 3), got {tuple(image.shape)}")
         if (image.shape[0], image.shape[1]) != (intrinsics.height, intrinsics.width):
