@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
 from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
+from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_around_keyframes
 from locnerf.filter.keyframes import KeyframeIndex
 from locnerf.filter.kld import KldConfig, kld_resample
 from locnerf.filter.lineage import NO_ANCESTOR, Lineage, lookup
@@ -71,9 +72,16 @@ class LocalizerConfig(BaseModel):
         default_factory=ConvergenceProtectionConfig, description="Re-drawing of a few particles before each update."
     )
     recovery: RecoveryConfig = Field(default_factory=RecoveryConfig, description="Augmented-MCL kidnapping recovery.")
+    keyframe_start: KeyframeStartConfig = Field(
+        default_factory=KeyframeStartConfig, description="Re-drawing part of a uniform global start around the keyframes that match the first image."
+    )
     lineage_depth: int = Field(64, ge=1, description="Resampling generations kept for merging delayed updates.")
     mlp_coarse_samples: int = Field(64, ge=1, description="Coarse samples per ray for the nerf-pytorch MLP backend.")
     mlp_fine_samples: int = Field(64, ge=0, description="Fine (importance) samples per ray for the nerf-pytorch MLP backend.")
+
+    def uses_keyframes(self) -> bool:
+        """Whether recovery or the keyframe start draws particles around the map's keyframes (a keyframe index is needed)."""
+        return (self.recovery.enabled and self.recovery.keyframe_share > 0) or self.keyframe_start.share > 0
 
 
 class SearchRegion(BaseModel):
@@ -134,7 +142,8 @@ class Localizer:
         region: search region for recovery injections (required when recovery is enabled).
         keyframes: the map's keyframes; when a merge injects recovery particles, the update's image
             is matched against them and a share (``recovery.keyframe_share``) of the fresh
-            particles is drawn around the best matches.
+            particles is drawn around the best matches; after a uniform start, the first image
+            re-draws a share (``keyframe_start.share``) of the particles likewise.
     """
 
     def __init__(
@@ -161,6 +170,7 @@ class Localizer:
         self._lineage = Lineage(config.lineage_depth)
         self._recovery = RecoveryMonitor(config.recovery)
         self._next_id = 0
+        self._keyframe_start_pending = False
         self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0}
 
     # ----------------------------------------------------------------- initialisation
@@ -175,6 +185,7 @@ class Localizer:
         self.stage = AnnealingStage.COARSE
         self._lineage.clear()
         self._recovery.reset()
+        self._keyframe_start_pending = False
 
     def initialize_inerf(self, center: torch.Tensor, translation_half_width: float = 0.1, max_angle_deg: float = 40.0) -> None:
         """Particles spread by the iNeRF protocol around ``center`` (4, 4)."""
@@ -191,8 +202,29 @@ class Localizer:
         self.initialize(initialization.gaussian_particles(mean, covariance, self.config.particles, self.generator))
 
     def initialize_uniform(self, region: SearchRegion, tilt: torch.Tensor | None = None) -> None:
-        """Positions uniform in the region, yaw uniform about its up axis, fixed tilt (roll/pitch)."""
+        """Positions uniform in the region, yaw uniform about its up axis, fixed tilt (roll/pitch).
+
+        With ``keyframe_start.share`` > 0 and keyframes, the next image seeds part of them
+        (:meth:`seed_from_image`)."""
         self.initialize(initialization.uniform_particles(region.bounds(), self.config.particles, self.generator, tilt, region.up))
+        self._keyframe_start_pending = self.config.keyframe_start.share > 0 and self.keyframes is not None
+
+    def seed_from_image(self, image: torch.Tensor, intrinsics: PinholeIntrinsics) -> int:
+        """After a uniform start, re-draw ``keyframe_start.share`` of the particles around the
+        keyframes most like ``image`` (H, W, 3) in [0, 1] (:mod:`locnerf.filter.keyframe_start`);
+        once per start, before its first snapshot. Returns how many particles were re-drawn."""
+        if not self._keyframe_start_pending:
+            return 0
+        self._keyframe_start_pending = False
+        candidates = self._matching_keyframes(image, intrinsics)
+        if candidates is None:
+            return 0
+        particles = self._require_particles()
+        share = self.config.keyframe_start.share
+        particles.poses = seed_around_keyframes(particles.poses, candidates, share, self.config.recovery, self.generator)
+        seeded = round(share * particles.count)
+        logger.info("keyframe start: %d of %d particles re-drawn around %d matching keyframes", seeded, particles.count, len(candidates.poses))
+        return seeded
 
     def _require_particles(self) -> ParticleSet:
         if self.particles is None:
@@ -358,16 +390,18 @@ class Localizer:
 
     # ----------------------------------------------------------------- synchronous use
     def update(self, image: torch.Tensor, intrinsics: PinholeIntrinsics, render_rays: RenderRays) -> MergeReport:
-        """One complete update on an image (H, W, 3) in [0, 1]: snapshot, render, merge."""
+        """One complete update on an image (H, W, 3) in [0, 1]: the keyframe start when one is
+        pending, snapshot, render (``measurement.pixels_for`` the particle count), merge."""
         if image.ndim != 3 or image.shape[-1] != 3:
             raise ValueError(f"image: expected shape (H, W, 3), got {tuple(image.shape)}")
         if (image.shape[0], image.shape[1]) != (intrinsics.height, intrinsics.width):
             raise ValueError(
                 f"image size {image.shape[1]}×{image.shape[0]} does not match the intrinsics {intrinsics.width}×{intrinsics.height}"
             )
+        self.seed_from_image(image, intrinsics)
         snap = self.snapshot()
         config = self.config.measurement
-        pixels = sample_pixels_of_image(image, config, self.generator)
+        pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
         colours = observed_colours(image, pixels)
         log_likelihoods = particle_log_likelihoods(
             snap.poses, pixels.to(self.device), colours.to(self.device), intrinsics, render_rays, config.exponent, config.ray_chunk
@@ -378,14 +412,21 @@ class Localizer:
         """The keyframes most like ``image`` (H, W, 3) seen with ``intrinsics``, when recovery draws
         around keyframes; None otherwise, or when the camera differs from the keyframes' (warned once)."""
         recovery = self.config.recovery
-        if self.keyframes is None or not recovery.enabled or recovery.keyframe_share == 0:
+        if not recovery.enabled or recovery.keyframe_share == 0:
+            return None
+        return self._matching_keyframes(image, intrinsics)
+
+    def _matching_keyframes(self, image: torch.Tensor, intrinsics: PinholeIntrinsics) -> KeyframeCandidates | None:
+        """The ``recovery.keyframe_count`` keyframes most like ``image`` (H, W, 3); None without keyframes
+        or when the camera differs from the keyframes' (warned once)."""
+        if self.keyframes is None:
             return None
         if not self.keyframes.matches(intrinsics):
             if not self._warned_camera:
-                logger.warning("image camera %s differs from the keyframes' %s: recovery draws no particles around keyframes", intrinsics, self.keyframes.camera)
+                logger.warning("image camera %s differs from the keyframes' %s: no particles are drawn around keyframes", intrinsics, self.keyframes.camera)
                 self._warned_camera = True
             return None
-        poses, _ = self.keyframes.query(image, recovery.keyframe_count)
+        poses, _ = self.keyframes.query(image, self.config.recovery.keyframe_count)
         return KeyframeCandidates(poses, self.keyframes.spacing)
 
     def estimate(self) -> ParticleEstimate:

@@ -38,9 +38,9 @@ def build_keyframe_index(render_rays: RenderRays, poses: torch.Tensor, intrinsic
 
 
 def recovery_keyframes(config: LocalizerConfig, radiance_map: RadianceMap, intrinsics: PinholeIntrinsics, seed: int) -> KeyframeIndex | None:
-    """The map's keyframe index for images of ``intrinsics``, when ``config``'s recovery draws
-    around keyframes (``recovery.keyframe_share`` > 0); None otherwise."""
-    if not config.recovery.enabled or config.recovery.keyframe_share == 0:
+    """The map's keyframe index for images of ``intrinsics``, when ``config``'s recovery or keyframe
+    start draws around keyframes (:meth:`LocalizerConfig.uses_keyframes`); None otherwise."""
+    if not config.uses_keyframes():
         return None
     poses = keyframe_poses(radiance_map, torch.Generator().manual_seed(seed))
     started = time.perf_counter()

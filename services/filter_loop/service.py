@@ -361,11 +361,12 @@ class FilterLoop:
             self.bad.record("image_too_old", str(error))
             return []
         localizer = self.state_machine.settled()
-        snapshot = localizer.snapshot(self.frames.map_increment(carry))
-        measurement = localizer.config.measurement
         intrinsics = header.intrinsics
         image = torch.from_numpy(pixels).float() / 255.0
-        chosen = sample_pixels_of_image(image, measurement, localizer.generator)
+        localizer.seed_from_image(image, intrinsics)
+        snapshot = localizer.snapshot(self.frames.map_increment(carry))
+        measurement = localizer.config.measurement
+        chosen = sample_pixels_of_image(image, measurement, localizer.generator, measurement.pixels_for(len(snapshot.ids)))
         colours = observed_colours(image, chosen)
         kept = image if localizer.keyframes is not None else None
         return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept))

@@ -10,6 +10,7 @@ import torch
 from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.annealing import AnnealingConfig
 from locnerf.filter.localizer import ConvergenceProtectionConfig
+from locnerf.filter.measurement import MeasurementConfig
 from locnerf.filter.motion import MotionNoiseConfig
 from locnerf.filter.recovery import RecoveryConfig
 from locnerf.geometry import make_pose, rotation_error_deg, so3_exp, translation_error
@@ -179,3 +180,19 @@ def test_synchronous_updates_converge_on_an_analytic_field(generator):
     assert translation_error(estimate.pose, truth) < 0.05
     assert rotation_error_deg(estimate.pose, truth) < 5.0
     assert estimate.covariance.shape == (6, 6)
+
+
+def test_a_synchronous_update_renders_the_pixels_its_ray_budget_allows(generator):
+    """50 particles under a budget of 1000 rays: 20 pixels each, 1000 rays rendered in all."""
+    camera = PinholeIntrinsics.from_fov(40, 30, math.radians(60))
+    image = render_image(analytic_render_rays, torch.eye(4), camera)
+    rendered: list[int] = []
+
+    def counting_render(origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+        rendered.append(origins.shape[0])
+        return analytic_render_rays(origins, directions)
+
+    localizer = make_localizer(generator, particles=50, measurement=MeasurementConfig(pixels=64, ray_budget=1000))
+    localizer.initialize(torch.eye(4, dtype=torch.float64).expand(50, 4, 4).clone())
+    localizer.update(image, camera, counting_render)
+    assert sum(rendered) == 1000

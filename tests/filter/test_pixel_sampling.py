@@ -74,3 +74,23 @@ def test_uniform_sampling_is_the_original_draw():
 def test_more_pixels_than_the_image_has_is_refused(generator):
     with pytest.raises(ValueError, match="M=1201"):
         sample_pixels_of_image(_two_edges(), MeasurementConfig(pixels=1201), generator)
+
+
+def test_the_ray_budget_trades_pixels_for_particles():
+    plain = MeasurementConfig(pixels=128)
+    assert [plain.pixels_for(n) for n in (1, 300, 2400, 100000)] == [128] * 4
+    budget = MeasurementConfig(pixels=128, ray_budget=76800, min_pixels=16)
+    assert budget.pixels_for(300) == 128  # 256 fit, the full M is the most
+    assert budget.pixels_for(1200) == 64
+    assert budget.pixels_for(2400) == 32
+    assert budget.pixels_for(1000) == 76
+    assert budget.pixels_for(100000) == 16  # never fewer than min_pixels
+    with pytest.raises(ValueError, match="particles=0"):
+        budget.pixels_for(0)
+
+
+def test_an_explicit_count_overrides_the_configured_pixels(generator):
+    config = MeasurementConfig(pixels=64, sampling="gradient")
+    pixels = sample_pixels_of_image(_two_edges(), config, generator, count=20)
+    assert pixels.shape == (20, 2)
+    assert len({(float(u), float(v)) for u, v in pixels}) == 20

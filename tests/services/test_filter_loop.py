@@ -473,3 +473,30 @@ def test_the_filter_process_builds_the_keyframe_index_only_when_its_configuratio
     loop = build_loop(FilterProcessConfig(map="world", localizer=str(with_keyframes), device="cpu"))
     assert len(loop.localizer.keyframes) == 200 and loop.localizer.keyframes.matches(ProceduralWorld.default().default_intrinsics)
     assert build_loop(FilterProcessConfig(map="world", localizer="tracking", device="cpu")).localizer.keyframes is None
+
+
+def test_the_first_update_after_a_global_start_is_seeded_at_the_keyframes_and_sized_by_the_ray_budget(world):
+    """A uniform start with ``keyframe_start.share = 0.9``: the first request already carries 270
+    of the 300 particles around the 8 keyframes most like the image (one is 3 cm and 0.6° from the
+    camera: some particles lie within 0.3 units and 10° of it, none of the uniform start did), and looks at
+    ray_budget // 300 = 20 pixels instead of 64."""
+    generator = torch.Generator().manual_seed(3)
+    keyframe_poses = torch.stack([world.sample_camera_pose(generator) for _ in range(60)])
+    camera = keyframe_poses[17] @ se3_exp(torch.tensor([0.0, 0.01, 0.0, 0.02, 0.0, -0.02], dtype=torch.float64))
+    settings = preset("llff", keyframe_start={"share": 0.9}, measurement={"pixels": 64, "ray_budget": 6000})
+    index = build_keyframe_index(world.render_rays, keyframe_poses, world.default_intrinsics)
+    harness = Harness(world, localizer_config=settings, keyframes=index)
+    harness.add_worker("w1")
+
+    def near_camera(poses: torch.Tensor) -> int:
+        poses, truth = poses.double(), camera.expand(len(poses), 4, 4)
+        return int(((translation_error(poses, truth) < 0.3) & (rotation_error_deg(poses, truth) < 10.0)).sum())
+
+    assert near_camera(harness.loop.localizer.particles.poses) == 0
+    harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
+    harness.loop.predict_pending()
+    harness.collect(harness.loop.handle_image(_image(world, 0.0, camera)))
+    harness.tick()
+    (_, request), = harness.requests
+    assert len(request.pixels) == 20
+    assert near_camera(torch.tensor(request.poses, dtype=torch.float64).reshape(-1, 4, 4)) > 0
