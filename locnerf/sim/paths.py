@@ -18,6 +18,7 @@ from typing import Protocol
 import torch
 
 from locnerf.data import PosedImages
+from locnerf.errors import DatasetError
 from locnerf.geometry import pose_inverse, se3_exp, se3_log
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
