@@ -27,7 +27,9 @@ from locnerf.field.map_info import MapInfo
 from locnerf.render.image import render_image
 from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 from locnerf.train.depth_rays import depth_loss, depth_training_rays
+from locnerf.train.exposure import ImageExposure
 from locnerf.train.metrics import psnr, psnr_from_mse, ssim
+from locnerf.train.total_variation import grid_total_variation
 
 logger = logging.getLogger(__name__)
 
@@ -79,6 +81,12 @@ class BuildConfig(BaseModel):
         0.1, gt=0, lt=1, description="One-step opacity given at the start to the vertices nearest to back-projected depth points (None: no seeding)."
     )
     depth_seed_points: int = Field(2_000_000, gt=0, description="Most depth points used for seeding (an evenly spaced subset).")
+    exposure_learning_rate: float | None = Field(
+        None, gt=0, description="Adam learning rate of a per-training-image colour gain and bias applied to renders in training only"
+        " (train/exposure.py: absorbs auto-exposure so the field stores one appearance); None: off."
+    )
+    tv_weight: float = Field(0.0, ge=0, description="Weight of the grid's total variation (train/total_variation.py) beside the colour MSE; 0: off.")
+    tv_vertices: int = Field(32768, gt=0, description="Random vertices per step at which the total variation is evaluated.")
     forward_facing: ForwardFacingConfig = Field(
         default_factory=ForwardFacingConfig, description="Replacements of the settings above for forward-facing (NDC) data."
     )
@@ -142,12 +150,15 @@ def _depth_rays(images: PosedImages, config: BuildConfig, info: MapInfo, device:
     return depth_training_rays(images, device)
 
 
-def _optimizer(field: GridField, config: BuildConfig) -> torch.optim.Optimizer:
+def _optimizer(field: GridField, exposure: ImageExposure | None, config: BuildConfig) -> torch.optim.Optimizer:
+    groups = [
+        {"params": [field.grid], "lr": config.grid_learning_rate, "initial_lr": config.grid_learning_rate},
+        {"params": list(field.decoder.parameters()), "lr": config.decoder_learning_rate, "initial_lr": config.decoder_learning_rate},
+    ]
+    if exposure is not None:
+        groups.append({"params": list(exposure.parameters()), "lr": config.exposure_learning_rate, "initial_lr": config.exposure_learning_rate})
     return torch.optim.Adam(
-        [
-            {"params": [field.grid], "lr": config.grid_learning_rate, "name": "grid"},
-            {"params": field.decoder.parameters(), "lr": config.decoder_learning_rate, "name": "decoder"},
-        ],
+        groups,
         betas=(0.9, 0.99),
         fused=True,
         eps=1e-15,  # gradients of sparsely hit voxels are tiny; a larger eps would freeze them
@@ -180,7 +191,9 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
         points = d_origins[::every] + d_observed[::every, None] * d_directions[::every]
         occupied = field.seed_density(points, config.depth_seed_alpha)
         logger.info("seeded the density at %d depth points: %.1f %% of the grid occupied", len(points), 100 * occupied)
-    optimizer = _optimizer(field, config)
+    exposure = ImageExposure(len(images)).to(device) if config.exposure_learning_rate is not None else None
+    pixels_per_image = images.intrinsics.height * images.intrinsics.width
+    optimizer = _optimizer(field, exposure, config)
     start = time.monotonic()
     budget = config.minutes * 60.0 if config.minutes is not None else None
     bar = tqdm(total=config.steps, disable=not progress, desc="build", unit="step")
@@ -194,14 +207,16 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
             break
         if field.resolution != fine_resolution and fraction >= config.coarse_fraction:
             field.resize(fine_resolution)
-            optimizer = _optimizer(field, config)
+            optimizer = _optimizer(field, exposure, config)
         decay = config.final_learning_rate_factor**fraction
         for group in optimizer.param_groups:
-            group["lr"] = (config.grid_learning_rate if group["name"] == "grid" else config.decoder_learning_rate) * decay
+            group["lr"] = group["initial_lr"] * decay
         if step >= config.occupancy_warmup and step % config.occupancy_every == 0:
             field.update_occupancy()
         batch = torch.randint(0, len(origins), (config.batch_rays,), generator=generator, device=device)
         predicted = field.render_training(field_origins[batch], field_directions[batch], directions[batch], generator)
+        if exposure is not None:
+            predicted = exposure(predicted, batch // pixels_per_image)
         colour_loss = torch.mean((predicted - colours[batch]) ** 2)
         loss = colour_loss
         if depth_rays is not None and config.depth_weight > 0:
@@ -210,6 +225,8 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
             d_loss = depth_loss(field.render_training_depth(d_origins[d_batch], d_directions[d_batch], generator), d_observed[d_batch])
             loss = loss + config.depth_weight * d_loss
             depth_history.append(float(d_loss.detach()))
+        if config.tv_weight > 0:
+            loss = loss + config.tv_weight * grid_total_variation(field, config.tv_vertices, generator)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
