@@ -20,7 +20,7 @@ from locnerf.field.map_file import load_map, read_map_archive, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
 from locnerf.render.image import render_image
-from locnerf.train import BuildConfig, build_map, evaluate_map, psnr
+from locnerf.train import BuildConfig, RoomConfig, build_map, evaluate_map, psnr
 
 logger = logging.getLogger(__name__)
 
@@ -37,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument("--checkpoint", help="nerf-pytorch .tar checkpoint (backend nerf_pytorch)")
     build.add_argument("--minutes", type=float, default=10.0, help="training wall-time budget")
     build.add_argument("--steps", type=int, default=BuildConfig().steps, help="most training steps")
-    build.add_argument("--voxels", type=int, default=GridFieldConfig().voxels, help="grid vertices in all")
+    build.add_argument("--voxels", type=int, help=f"grid vertices in all (default {GridFieldConfig().voxels}; RGB-D data {RoomConfig().voxels})")
     build.add_argument("--downscale", type=int, help="image size divisor (default 8 for LLFF, 4 for 7-Scenes, 1 otherwise)")
     build.add_argument("--split", default="train", help="split to build from (the held-out figures use the test split)")
     build.add_argument("--stride", type=int, default=1, help="keep every N-th frame of the split")
@@ -102,7 +102,7 @@ def run_build(args: argparse.Namespace) -> int:
         radiance_map = load_nerf_pytorch_checkpoint(args.checkpoint, info, train.white_background, device)
     else:
         config = BuildConfig(
-            steps=args.steps, minutes=args.minutes, seed=args.seed, field=GridFieldConfig(voxels=args.voxels),
+            steps=args.steps, minutes=args.minutes, seed=args.seed, field=GridFieldConfig() if args.voxels is None else GridFieldConfig(voxels=args.voxels),
             use_depth=not args.no_depth, depth_weight=args.depth_weight,
         )
         radiance_map = build_map(train, config, device=device, progress=True)

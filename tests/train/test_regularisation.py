@@ -9,7 +9,8 @@ import torch
 
 from locnerf.data import read_dataset
 from locnerf.field.grid import GridField, GridFieldConfig
-from locnerf.train import BuildConfig, build_map
+from locnerf.train import BuildConfig, RoomConfig, build_map
+from locnerf.train.build import config_for
 from locnerf.train.exposure import ImageExposure
 from locnerf.train.total_variation import grid_total_variation
 
@@ -79,3 +80,13 @@ def test_short_rgbd_build_with_exposure_and_total_variation(shared_data: Path) -
     assert radiance_map.metadata["steps"] == 30
     assert {name.split(".")[0] for name, _ in radiance_map.field.named_parameters()} == {"grid", "decoder"}
     assert torch.isfinite(radiance_map.field.grid).all()
+
+
+def test_room_settings_replace_the_defaults_for_rgbd_data_only_and_explicit_settings_win(shared_data: Path) -> None:
+    frames = read_dataset(shared_data / "7scenes_redkitchen", split="train", downscale=16, stride=120)
+    room = config_for(frames, BuildConfig())
+    assert room.field.voxels == RoomConfig().voxels and room.tv_weight == RoomConfig().tv_weight
+    explicit = config_for(frames, BuildConfig(field=GridFieldConfig(voxels=1000), tv_weight=0.0))
+    assert explicit.field.voxels == 1000 and explicit.tv_weight == 0.0
+    colour_only = config_for(frames.without_depth(), BuildConfig())
+    assert colour_only.field.voxels == GridFieldConfig().voxels and colour_only.tv_weight == 0.0
