@@ -106,7 +106,6 @@ def run_build(args: argparse.Namespace) -> int:
             use_depth=not args.no_depth, depth_weight=args.depth_weight,
         )
         radiance_map = build_map(train, config, device=device, progress=True)
-        radiance_map.metadata["config"] = config.model_dump(mode="json")
     held_out = _held_out(args.data, args.downscale)
     scores = evaluate_map(radiance_map.render_rays, held_out, device)
     radiance_map.metadata.update(heldout_psnr=round(scores["psnr"], 3), heldout_ssim=round(scores["ssim"], 4), heldout_views=scores["views"])

@@ -54,6 +54,8 @@ class MeasurementConfig(BaseModel):
     exposure_gain_range: tuple[float, float] | None = Field(
         None, description="Exposure-invariant likelihood (module docstring): the per-particle, per-channel gain fitted to the"
         " observed pixels is clamped to [low, high] (e.g. (0.5, 2.0)); None compares renders as they are (the original)."
+        " Applied by the in-process localizer (eval single-image, global, tracking without --live); the live services'"
+        " update requests do not carry it."
     )
 
     @model_validator(mode="after")

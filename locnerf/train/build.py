@@ -193,7 +193,8 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
     """Train a grid map on ``images`` (the training split).
 
     Returns:
-        the map; its metadata holds ``steps``, ``seconds``, ``train_psnr`` (last batches) and ``source``.
+        the map; its metadata holds ``config`` (the settings used, after :func:`config_for`), ``steps``,
+        ``seconds``, ``train_psnr`` (last batches) and ``source``.
     """
     device = torch.device(device)
     config = config_for(images, config)
@@ -263,7 +264,7 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
     bar.close()
     field.update_occupancy(config.final_occupancy_alpha)
     seconds = time.monotonic() - start
-    info.metadata.update(steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution),
+    info.metadata.update(config=config.model_dump(mode="json"), steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution),
                          depth_supervised=depth_rays is not None)
     if depth_history:
         window = min(50, len(depth_history))
