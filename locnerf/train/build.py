@@ -8,7 +8,10 @@ exponentially with the progress fraction.
 RGB-D data (images with ``depths``, e.g. 7-Scenes) add an expected-depth loss on random rays of
 the depth camera (``depth_weight``) and, optionally, start the density from the back-projected
 depth points (``depth_seed_alpha``): a room seen from inside then has its walls from the first
-step, and training samples only near them. ``use_depth=False`` trains on colour only.
+step, and training samples only near them. ``use_depth=False`` trains on colour only. RGB-D data
+default to a coarser grid with total variation (``room``). Options, off by default: a per-image
+exposure transform of the training renders (``exposure_learning_rate``) and total variation
+(``tv_weight``).
 """
 
 from __future__ import annotations
