@@ -49,7 +49,7 @@ def test_closed_form_matches_a_naive_search_over_gains(generator: torch.Generato
     torch.testing.assert_close(fast, naive_residuals(rendered, observed, 0.5, 2.0), atol=2e-4, rtol=0)
 
 
-def test_a_change_of_exposure_within_the_range_leaves_the_likelihood_unchanged(generator: torch.Generator) -> None:
+def test_a_change_of_exposure_shifts_every_log_likelihood_by_one_constant(generator: torch.Generator) -> None:
     truth = make_pose(so3_exp(torch.tensor([0.1, 0.2, 0.0], dtype=torch.float64)), torch.tensor([0.3, 0.0, 1.0], dtype=torch.float64))
     image = render_image(analytic_render_rays, truth, CAMERA)
     poses = gaussian_particles(truth, torch.eye(6, dtype=torch.float64) * 0.01, 8, generator)
@@ -58,8 +58,9 @@ def test_a_change_of_exposure_within_the_range_leaves_the_likelihood_unchanged(g
     darker = observed * 0.75 + torch.tensor([0.02, 0.0, 0.01], dtype=torch.float64)
     plain = particle_log_likelihoods(poses, pixels, observed, CAMERA, analytic_render_rays, exposure_gain_range=(0.1, 10.0))
     shifted = particle_log_likelihoods(poses, pixels, darker, CAMERA, analytic_render_rays, exposure_gain_range=(0.1, 10.0))
-    # A wide gain range, so that no fitted gain is clamped: every fitted gain scales by 0.75 (the biases absorb the offsets), so every residual does and the
-    # log-likelihoods shift by one constant, 2γ·log(1/0.75): the ranking of the particles is kept.
+    # A wide gain range, so that no fitted gain is clamped: every fitted gain scales by 0.75 (the biases
+    # absorb the offsets), so every residual does, and the log-likelihoods shift by one constant,
+    # 2γ·log(1/0.75): the ranking of the particles is kept.
     torch.testing.assert_close(shifted - plain, (shifted - plain)[:1].expand(8), atol=1e-6, rtol=0)
     uncompensated = particle_log_likelihoods(poses, pixels, darker, CAMERA, analytic_render_rays)
     assert not torch.allclose(uncompensated - plain, (uncompensated - plain)[:1].expand(8), atol=1e-3)
