@@ -22,7 +22,7 @@ from locnerf.field.map_file import load_map, read_map_archive, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
 from locnerf.render.image import render_image
-from locnerf.train import BuildConfig, build_map, evaluate_map, psnr
+from locnerf.train import BuildConfig, RoomConfig, build_map, evaluate_map, psnr
 
 logger = logging.getLogger(__name__)
 
@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument("--checkpoint", help="nerf-pytorch .tar checkpoint (backend nerf_pytorch)")
     build.add_argument("--minutes", type=float, default=10.0, help="training wall-time budget")
     build.add_argument("--steps", type=int, default=BuildConfig().steps, help="most training steps")
-    build.add_argument("--voxels", type=int, default=GridFieldConfig().voxels, help="grid vertices in all")
+    build.add_argument("--voxels", type=int, help=f"grid vertices in all (default {GridFieldConfig().voxels}; RGB-D data {RoomConfig().voxels})")
     build.add_argument("--downscale", type=int, help="image size divisor (default 8 for LLFF, 4 for 7-Scenes, 1 otherwise)")
     build.add_argument("--split", default="train", help="split to build from (the held-out figures use the test split)")
     build.add_argument("--stride", type=int, default=1, help="keep every N-th frame of the split")
@@ -102,11 +102,10 @@ def run_build(args: argparse.Namespace) -> int:
         info = MapInfo(train.normalization, train.intrinsics, train.T_world_cam.double(), {"source": train.source, "checkpoint": args.checkpoint})
         radiance_map = load_nerf_pytorch_checkpoint(args.checkpoint, info, train.white_background, device)
     else:
-        field = from_flags(GridFieldConfig, {"voxels": args.voxels})
+        field = GridFieldConfig() if args.voxels is None else from_flags(GridFieldConfig, {"voxels": args.voxels})
         values = {"steps": args.steps, "minutes": args.minutes, "seed": args.seed, "field": field, "use_depth": not args.no_depth, "depth_weight": args.depth_weight}
         config = from_flags(BuildConfig, values, {"use_depth": "--no-depth"})
         radiance_map = build_map(train, config, device=device, progress=True)
-        radiance_map.metadata["config"] = config.model_dump(mode="json")
     held_out = _held_out(args.data, args.downscale)
     scores = evaluate_map(radiance_map.render_rays, held_out, device)
     radiance_map.metadata.update(heldout_psnr=round(scores["psnr"], 3), heldout_ssim=round(scores["ssim"], 4), heldout_views=scores["views"])

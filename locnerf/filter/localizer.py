@@ -404,7 +404,8 @@ class Localizer:
         pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
         colours = observed_colours(image, pixels)
         log_likelihoods = particle_log_likelihoods(
-            snap.poses, pixels.to(self.device), colours.to(self.device), intrinsics, render_rays, config.exponent, config.ray_chunk
+            snap.poses, pixels.to(self.device), colours.to(self.device), intrinsics, render_rays, config.exponent, config.ray_chunk,
+            config.exposure_gain_range,
         )
         return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics))
 

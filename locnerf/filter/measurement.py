@@ -18,6 +18,13 @@ particles (at least ``min_pixels``): the render costs about N·M rays, so a spre
 particles (a global start) takes many cheap updates and a converged one, shrunk by KLD-sampling,
 gets the full M back. The likelihood is a power of the mean squared error, so its sharpness does
 not depend on M; fewer pixels make it noisier, not flatter.
+
+Exposure: a camera with auto-exposure (the Kinect of 7-Scenes) sees a surface brighter or darker
+than the map stored it, and the plain SSE then prefers poses whose render happens to match the
+brightness. ``exposure_gain_range`` (off by default) compares each particle's render only after the
+best per-channel gain and bias for that particle: ``min over g, b of Σ_j (I_j − g·C_j − b)²``,
+closed-form least squares over the M pixels (the gain clamped to the range, so that a flat render
+of a wrong pose cannot be stretched into anything), vectorised over particles and channels.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ from __future__ import annotations
 from typing import Literal
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import RenderRays
@@ -57,6 +64,21 @@ class MeasurementConfig(BaseModel):
         "updates, and the full `pixels` come back as KLD-sampling shrinks the cloud.",
     )
     min_pixels: int = Field(16, ge=1, description="ray_budget: fewest pixels an update looks at, however many particles.")
+
+    exposure_gain_range: tuple[float, float] | None = Field(
+        None, description="Exposure-invariant likelihood (module docstring): the per-particle, per-channel gain fitted to the"
+        " observed pixels is clamped to [low, high] (e.g. (0.5, 2.0)); None compares renders as they are (the original)."
+        " Applied by the in-process localizer (eval single-image, global, tracking without --live); the live services'"
+        " update requests do not carry it."
+    )
+
+    @model_validator(mode="after")
+    def _check_gain_range(self) -> "MeasurementConfig":
+        if self.exposure_gain_range is not None:
+            low, high = self.exposure_gain_range
+            if not 0 < low <= 1 <= high:
+                raise ValueError(f"exposure_gain_range={self.exposure_gain_range}: expected 0 < low <= 1 <= high")
+        return self
 
     def pixels_for(self, particles: int) -> int:
         """M for an update of ``particles`` particles under the ray budget (see ``ray_budget``)."""
@@ -155,6 +177,30 @@ def log_likelihood_from_errors(squared_error_sum: torch.Tensor, pixel_count: int
     return exponent * (torch.log(torch.tensor(float(pixel_count), dtype=torch.float64)) - torch.log(sse))
 
 
+def exposure_compensated_residuals(rendered: torch.Tensor, observed: torch.Tensor, gain_range: tuple[float, float]) -> torch.Tensor:
+    """Residuals ``observed − (g·rendered + b)`` after the least-squares gain and bias of each particle and channel.
+
+    For one particle and channel with renders r_j and observations o_j over the M pixels,
+    ``g = cov(r, o) / var(r)`` clamped to ``gain_range`` (a render without variance gets g = 1)
+    and ``b = mean(o) − g·mean(r)``, the optimum of the squared error for that g.
+
+    Args:
+        rendered: (N, M, 3) rendered colours of N particles.
+        observed: (M, 3) observed colours.
+        gain_range: (low, high) bounds of the gain.
+    Returns:
+        (N, M, 3) residuals, same dtype as ``rendered``.
+    """
+    low, high = gain_range
+    rendered_centred = rendered - rendered.mean(dim=1, keepdim=True)
+    observed_centred = observed - observed.mean(dim=0, keepdim=True)
+    variance = (rendered_centred * rendered_centred).sum(dim=1)
+    covariance = (rendered_centred * observed_centred[None]).sum(dim=1)
+    flat = variance <= 1e-12
+    gain = torch.where(flat, torch.ones_like(variance), covariance / torch.where(flat, torch.ones_like(variance), variance)).clamp(low, high)
+    return observed_centred[None] - gain[:, None, :] * rendered_centred
+
+
 def particle_log_likelihoods(
     poses: torch.Tensor,
     pixels: torch.Tensor,
@@ -163,6 +209,7 @@ def particle_log_likelihoods(
     render_rays: RenderRays,
     exponent: float = 4.0,
     ray_chunk: int = 65536,
+    exposure_gain_range: tuple[float, float] | None = None,
 ) -> torch.Tensor:
     """Log-likelihood of every particle: render the same M pixels from all N poses in one batch.
 
@@ -174,6 +221,8 @@ def particle_log_likelihoods(
         render_rays: the map: origins (R, 3), directions (R, 3) -> rgb (R, 3).
         exponent: γ of eq. 5.
         ray_chunk: rays per render call.
+        exposure_gain_range: None compares the renders as they are; (low, high) first fits each
+            particle's per-channel gain (clamped) and bias (:func:`exposure_compensated_residuals`).
     Returns:
         (N,) float64 log-likelihoods.
     """
@@ -186,5 +235,10 @@ def particle_log_likelihoods(
         rendered = torch.cat(
             [render_rays(flat_origins[i : i + ray_chunk], flat_dirs[i : i + ray_chunk]) for i in range(0, len(flat_origins), ray_chunk)]
         )
-    residual = rendered.reshape(poses.shape[0], count, 3) - observed_rgb.to(rendered.device, rendered.dtype)
+    rendered = rendered.reshape(poses.shape[0], count, 3)
+    observed = observed_rgb.to(rendered.device, rendered.dtype)
+    if exposure_gain_range is None:
+        residual = rendered - observed
+    else:
+        residual = exposure_compensated_residuals(rendered, observed, exposure_gain_range)
     return log_likelihood_from_errors((residual * residual).sum(dim=(1, 2)), count, exponent)

@@ -9,7 +9,10 @@ is bit-reproducible from its seed (several intra-op threads sum gradients in a v
 RGB-D data (images with ``depths``, e.g. 7-Scenes) add an expected-depth loss on random rays of
 the depth camera (``depth_weight``) and, optionally, start the density from the back-projected
 depth points (``depth_seed_alpha``): a room seen from inside then has its walls from the first
-step, and training samples only near them. ``use_depth=False`` trains on colour only.
+step, and training samples only near them. ``use_depth=False`` trains on colour only. RGB-D data
+default to a coarser grid with total variation (``room``). Options, off by default: a per-image
+exposure transform of the training renders (``exposure_learning_rate``) and total variation
+(``tv_weight``).
 """
 
 from __future__ import annotations
@@ -31,7 +34,9 @@ from locnerf.field.map_info import MapInfo
 from locnerf.render.image import render_image
 from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 from locnerf.train.depth_rays import depth_loss, depth_training_rays
+from locnerf.train.exposure import ImageExposure
 from locnerf.train.metrics import psnr, psnr_from_mse, ssim
+from locnerf.train.total_variation import grid_total_variation
 
 logger = logging.getLogger(__name__)
 
@@ -55,6 +60,21 @@ class ForwardFacingConfig(BaseModel):
     render_step_factor: float = Field(
         1.0, ge=1, description="The field's render_step_factor: NDC maps render at the training step (fern hold-out 22.7 dB against 21.9 dB at 2×)."
     )
+
+
+class RoomConfig(BaseModel):
+    """Settings that replace the general ones when the data have depth images (RGB-D rooms seen from inside, 7-Scenes).
+
+    Only where the caller left the general setting at its default (pydantic's ``model_fields_set``):
+    an explicit ``voxels`` or ``tv_weight`` wins. Chosen with 200-step builds of the redkitchen
+    training split scored on every 20th test frame (docs/MAPS.md): test views from another
+    trajectory than the training frames' favour a coarser, smoother grid, which also steps faster.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    voxels: int = Field(64**3, gt=0, description="Grid vertices in all (redkitchen: 87×49×65, 5.6 cm voxels, against 2.8 cm at the general 128³).")
+    tv_weight: float = Field(0.01, ge=0, description="Weight of the grid's total variation (BuildConfig.tv_weight).")
 
 
 class BuildConfig(BaseModel):
@@ -86,8 +106,17 @@ class BuildConfig(BaseModel):
         0.1, gt=0, lt=1, description="One-step opacity given at the start to the vertices nearest to back-projected depth points (None: no seeding)."
     )
     depth_seed_points: int = Field(2_000_000, gt=0, description="Most depth points used for seeding (an evenly spaced subset).")
+    exposure_learning_rate: float | None = Field(
+        None, gt=0, description="Adam learning rate of a per-training-image colour gain and bias applied to renders in training only"
+        " (train/exposure.py: absorbs auto-exposure so the field stores one appearance); None: off."
+    )
+    tv_weight: float = Field(0.0, ge=0, description="Weight of the grid's total variation (train/total_variation.py) beside the colour MSE; 0: off.")
+    tv_vertices: int = Field(32768, gt=0, description="Random vertices per step at which the total variation is evaluated.")
     forward_facing: ForwardFacingConfig = Field(
         default_factory=ForwardFacingConfig, description="Replacements of the settings above for forward-facing (NDC) data."
+    )
+    room: RoomConfig = Field(
+        default_factory=RoomConfig, description="Replacements of the settings above for RGB-D data (rooms seen from inside), unless set explicitly."
     )
 
 
@@ -103,11 +132,17 @@ def training_rays(images: PosedImages, device: torch.device) -> tuple[torch.Tens
 
 
 def config_for(images: PosedImages, config: BuildConfig) -> BuildConfig:
-    """The settings that train on ``images``: ``config`` itself, or with its ``forward_facing`` values for NDC data.
+    """The settings that train on ``images``: ``config`` itself, with its ``forward_facing`` values for NDC
+    data, or with its ``room`` values for RGB-D data where ``config`` left the general ones at their defaults.
 
     NDC x and y span the image width and height, so an x:y voxel edge ratio of width:height gives
     every voxel a square pixel footprint; NDC depth takes ``depth_ratio`` times coarser voxels.
     """
+    if images.depths is not None and not images.normalization.ndc:
+        room = config.room
+        field = config.field if "voxels" in config.field.model_fields_set else config.field.model_copy(update={"voxels": room.voxels})
+        tv_weight = config.tv_weight if "tv_weight" in config.model_fields_set else room.tv_weight
+        return config.model_copy(update={"field": field, "tv_weight": tv_weight})
     if not images.normalization.ndc:
         return config
     ndc = config.forward_facing
@@ -149,12 +184,15 @@ def _depth_rays(images: PosedImages, config: BuildConfig, info: MapInfo, device:
     return depth_training_rays(images, device)
 
 
-def _optimizer(field: GridField, config: BuildConfig) -> torch.optim.Optimizer:
+def _optimizer(field: GridField, exposure: ImageExposure | None, config: BuildConfig) -> torch.optim.Optimizer:
+    groups = [
+        {"params": [field.grid], "lr": config.grid_learning_rate, "initial_lr": config.grid_learning_rate},
+        {"params": list(field.decoder.parameters()), "lr": config.decoder_learning_rate, "initial_lr": config.decoder_learning_rate},
+    ]
+    if exposure is not None:
+        groups.append({"params": list(exposure.parameters()), "lr": config.exposure_learning_rate, "initial_lr": config.exposure_learning_rate})
     return torch.optim.Adam(
-        [
-            {"params": [field.grid], "lr": config.grid_learning_rate, "name": "grid"},
-            {"params": field.decoder.parameters(), "lr": config.decoder_learning_rate, "name": "decoder"},
-        ],
+        groups,
         betas=(0.9, 0.99),
         fused=True,
         eps=1e-15,  # gradients of sparsely hit voxels are tiny; a larger eps would freeze them
@@ -177,7 +215,8 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
     """Train a grid map on ``images`` (the training split), with ``config.threads`` intra-op threads.
 
     Returns:
-        the map; its metadata holds ``steps``, ``seconds``, ``train_psnr`` (last batches) and ``source``.
+        the map; its metadata holds ``config`` (the settings used, after :func:`config_for`), ``steps``,
+        ``seconds``, ``train_psnr`` (last batches) and ``source``.
     """
     with intra_op_threads(config.threads):
         return _train_map(images, config, torch.device(device), progress)
@@ -204,7 +243,9 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
         points = d_origins[::every] + d_observed[::every, None] * d_directions[::every]
         occupied = field.seed_density(points, config.depth_seed_alpha)
         logger.info("seeded the density at %d depth points: %.1f %% of the grid occupied", len(points), 100 * occupied)
-    optimizer = _optimizer(field, config)
+    exposure = ImageExposure(len(images)).to(device) if config.exposure_learning_rate is not None else None
+    pixels_per_image = images.intrinsics.height * images.intrinsics.width
+    optimizer = _optimizer(field, exposure, config)
     start = time.monotonic()
     budget = config.minutes * 60.0 if config.minutes is not None else None
     bar = tqdm(total=config.steps, disable=not progress, desc="build", unit="step")
@@ -218,14 +259,16 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
             break
         if field.resolution != fine_resolution and fraction >= config.coarse_fraction:
             field.resize(fine_resolution)
-            optimizer = _optimizer(field, config)
+            optimizer = _optimizer(field, exposure, config)
         decay = config.final_learning_rate_factor**fraction
         for group in optimizer.param_groups:
-            group["lr"] = (config.grid_learning_rate if group["name"] == "grid" else config.decoder_learning_rate) * decay
+            group["lr"] = group["initial_lr"] * decay
         if step >= config.occupancy_warmup and step % config.occupancy_every == 0:
             field.update_occupancy()
         batch = torch.randint(0, len(origins), (config.batch_rays,), generator=generator, device=device)
         predicted = field.render_training(field_origins[batch], field_directions[batch], directions[batch], generator)
+        if exposure is not None:
+            predicted = exposure(predicted, batch // pixels_per_image)
         colour_loss = torch.mean((predicted - colours[batch]) ** 2)
         loss = colour_loss
         if depth_rays is not None and config.depth_weight > 0:
@@ -234,6 +277,8 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
             d_loss = depth_loss(field.render_training_depth(d_origins[d_batch], d_directions[d_batch], generator), d_observed[d_batch])
             loss = loss + config.depth_weight * d_loss
             depth_history.append(float(d_loss.detach()))
+        if config.tv_weight > 0:
+            loss = loss + config.tv_weight * grid_total_variation(field, config.tv_vertices, generator)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -246,7 +291,7 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
     bar.close()
     field.update_occupancy(config.final_occupancy_alpha)
     seconds = time.monotonic() - start
-    info.metadata.update(steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution),
+    info.metadata.update(config=config.model_dump(mode="json"), steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution),
                          depth_supervised=depth_rays is not None)
     if depth_history:
         window = min(50, len(depth_history))

@@ -1,0 +1,31 @@
+"""Per-training-image exposure: a learned colour gain and bias per image, applied to renders in training only.
+
+Hand-held RGB-D cameras (the Kinect of 7-Scenes) adjust exposure and white balance frame by frame,
+so one surface has a different colour in each image. Fitting the field to all of them at once
+either averages the differences into blur or bakes them into view-dependent colour that does not
+carry over to new views. With ``rendered · gain_i + bias_i`` (per channel, image i) compared to
+image i, the field can store one canonical appearance and the per-image transform absorbs the
+camera's changes. Maps store only the field: renders of new views are canonical.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+class ImageExposure(torch.nn.Module):
+    """Learnable per-image, per-channel affine colour transform, initialised to the identity.
+
+    Parameters: ``gain`` (K, 3), starting at 1, and ``bias`` (K, 3), starting at 0, for K images.
+    """
+
+    def __init__(self, images: int) -> None:
+        if images < 1:
+            raise ValueError(f"images={images}: expected at least one training image")
+        super().__init__()
+        self.gain = torch.nn.Parameter(torch.ones(images, 3))
+        self.bias = torch.nn.Parameter(torch.zeros(images, 3))
+
+    def forward(self, colours: torch.Tensor, image_index: torch.Tensor) -> torch.Tensor:
+        """Colours (R, 3) rendered for rays of images ``image_index`` (R,) long -> (R, 3) as image i's camera sees them."""
+        return colours * self.gain[image_index] + self.bias[image_index]
