@@ -19,7 +19,7 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/locnerf up --duration 40 --port 0 --plot out/demo/services.png
 
-test: $(STAMP)
+test: $(STAMP) lint
 	$(BIN)/python -m pytest -q
 
 # Lint and format check (ruff settings in pyproject.toml).

@@ -86,12 +86,25 @@ def build_targets(particles: int, pixels: int, map_spec: str, device: torch.devi
     sigma = torch.tensor([0.02] * 3 + [0.01] * 3, dtype=torch.float64)
     particle_set = ParticleSet(poses=poses, log_weights=weights.log(), ids=torch.arange(particles), parent_ids=torch.arange(particles))
     request = UpdateRequest(
-        request_id="bench", shard=0, epoch=0, generation=0, ids=list(range(particles)), poses=poses.reshape(-1, 16).tolist(),
-        pixels=pixel_uv.tolist(), observed_rgb=observed.tolist(), intrinsics=intrinsics,
+        request_id="bench",
+        shard=0,
+        epoch=0,
+        generation=0,
+        ids=list(range(particles)),
+        poses=poses.reshape(-1, 16).tolist(),
+        pixels=pixel_uv.tolist(),
+        observed_rgb=observed.tolist(),
+        intrinsics=intrinsics,
     )
     result = UpdateResult(
-        request_id="bench", shard=0, worker_id="bench", epoch=0, generation=0, ids=list(range(particles)),
-        log_likelihoods=torch.randn(particles, dtype=torch.float64, generator=generator).tolist(), compute_seconds=0.0,
+        request_id="bench",
+        shard=0,
+        worker_id="bench",
+        epoch=0,
+        generation=0,
+        ids=list(range(particles)),
+        log_likelihoods=torch.randn(particles, dtype=torch.float64, generator=generator).tolist(),
+        compute_seconds=0.0,
     )
     frame = np.random.default_rng(0).integers(0, 256, (intrinsics.height, intrinsics.width, 3), dtype=np.uint8)
     header = ImageHeader(stamp=0.0, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics)

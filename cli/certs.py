@@ -64,7 +64,7 @@ def make_certificates(out: Path, roles: tuple[str, ...] = ROLES, days: int = 365
     if not roles or len(set(roles)) != len(roles) or not all(role.strip() for role in roles):
         raise LocnerfInputError(f"roles {roles!r}: expected distinct, non-empty common names")
     out.mkdir(parents=True, exist_ok=True)
-    now = datetime.datetime.now(datetime.timezone.utc)
+    now = datetime.datetime.now(datetime.UTC)
     start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=days)
     ca_key = ec.generate_private_key(ec.SECP256R1())
     ca = (

@@ -81,8 +81,18 @@ def run(args: argparse.Namespace) -> int:
         results += run_views([view], radiance_map, pool.intrinsics, localizer, trial_config)
         logger.info("frame %d: %.4f units, %.2f deg, %.1f s", view.frame, results[-1].translation_error, results[-1].rotation_error_deg, results[-1].seconds)
     records = [trial_record(v, r) for v, r in zip(views, results)]
-    report = {"protocol": args.protocol, "map": args.map, "data": str(args.data), "seed": args.seed, "updates": args.updates,
-              "particles": config.particles, "pixels": config.measurement.pixels, "device": str(device), "totals": totals(records), "trials": records}
+    report = {
+        "protocol": args.protocol,
+        "map": args.map,
+        "data": str(args.data),
+        "seed": args.seed,
+        "updates": args.updates,
+        "particles": config.particles,
+        "pixels": config.measurement.pixels,
+        "device": str(device),
+        "totals": totals(records),
+        "trials": records,
+    }
     if args.plots is not None:
         report["plots"] = write_plots(args.plots, args.protocol, views, results)
         report["plots"].append(str(write_render_panels(args.plots / f"{args.protocol}_image_vs_render.png", radiance_map, pool.intrinsics, views, results)))

@@ -62,7 +62,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
-    parser.add_argument("--live", action="store_true", help="run ingest, filter and workers as processes over loopback Zenoh at real speed (the filter starts globally)")
+    parser.add_argument(
+        "--live", action="store_true", help="run ingest, filter and workers as processes over loopback Zenoh at real speed (the filter starts globally)"
+    )
     parser.add_argument("--workers", type=int, default=1, help="--live: NeRF worker processes")
     parser.add_argument("--logs", type=Path, default=Path("out/eval_tracking_live"), help="--live: folder for the services' configs and logs")
     parser.add_argument("--plots", type=Path, default=None, help="folder for the PNG figure")
@@ -111,7 +113,13 @@ def vio_config(args: argparse.Namespace) -> VioConfig:
         "translation_noise": args.noise,
         "rotation_noise": math.radians(args.rotation_noise),
     }
-    flags = {"rate": "--odom-rate", "translation_drift": "--drift", "yaw_drift_rate": "--yaw-drift (in radians)", "translation_noise": "--noise", "rotation_noise": "--rotation-noise (in radians)"}
+    flags = {
+        "rate": "--odom-rate",
+        "translation_drift": "--drift",
+        "yaw_drift_rate": "--yaw-drift (in radians)",
+        "translation_noise": "--noise",
+        "rotation_noise": "--rotation-noise (in radians)",
+    }
     return from_flags(VioConfig, values, flags)
 
 
@@ -122,7 +130,9 @@ def run(args: argparse.Namespace) -> int:
     criterion = convergence_criterion(args)
     if args.live:
         if args.background != "white" or args.updates_per_image != 1 or args.init != "global" or args.no_recovery or args.plots:
-            raise LocnerfInputError("--live: --background white, --updates-per-image 1, --init global, no --no-recovery and no --plots (the services do not do the others)")
+            raise LocnerfInputError(
+                "--live: --background white, --updates-per-image 1, --init global, no --no-recovery and no --plots (the services do not do the others)"
+            )
         path = camera_path(args, open_map(args.map, torch.device("cpu")))
         sensor_seconds = args.duration if args.duration is not None else path.duration
         report = run_live(args, criterion, image_rate, vio_config(args).model_dump(), sensor_seconds)
@@ -133,7 +143,9 @@ def run(args: argparse.Namespace) -> int:
     path = camera_path(args, radiance_map)
     scenario = build_scenario(
         path,
-        from_flags(ScenarioConfig, {"duration": args.duration, "image_rate": image_rate, "vio": vio_config(args), "kidnap_at": args.kidnap_at, "seed": args.seed}),
+        from_flags(
+            ScenarioConfig, {"duration": args.duration, "image_rate": image_rate, "vio": vio_config(args), "kidnap_at": args.kidnap_at, "seed": args.seed}
+        ),
         radiance_map.normalization,
     )
     config = localizer_config(args)
@@ -141,7 +153,9 @@ def run(args: argparse.Namespace) -> int:
     keyframes = recovery_keyframes(config, radiance_map, path.intrinsics, args.seed + 2)
     localizer = Localizer(config, torch.Generator().manual_seed(args.seed), device, region=region, keyframes=keyframes)
     image_generator = torch.Generator().manual_seed(args.seed + 1)
-    record = run_tracking(scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet, updates_per_image=args.updates_per_image)
+    record = run_tracking(
+        scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet, updates_per_image=args.updates_per_image
+    )
     summary = summarize_tracking(record, criterion)
     if args.plots is not None:
         name = "world" if args.sequence == WORLD else Path(args.sequence).name

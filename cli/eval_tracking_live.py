@@ -64,9 +64,7 @@ def service_configs(args: argparse.Namespace, image_rate: float, vio: dict[str, 
     map_spec = args.map if args.map == WORLD else str(Path(args.map).resolve())
     localizer = str(Path(args.config).resolve()) if args.config is not None else args.preset
     common = {"robot_id": ROBOT_ID, "seed": args.seed}
-    ingest = IngestConfig(
-        source="scenario", prefetch_events=events, prefill=True, speed=1.0, scenario=scenario_settings(args, image_rate, vio), **common
-    )
+    ingest = IngestConfig(source="scenario", prefetch_events=events, prefill=True, speed=1.0, scenario=scenario_settings(args, image_rate, vio), **common)
     filter_config = FilterProcessConfig(map=map_spec, device=args.device, localizer=localizer, **common)
     worker = WorkerConfig(map=map_spec, device=args.device, robot_id=ROBOT_ID)
     return ServiceConfigs(ingest, filter_config, worker, args.workers)

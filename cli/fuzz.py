@@ -29,16 +29,16 @@ import psutil
 from hypothesis import HealthCheck, Phase, given, seed, settings
 from pydantic import BaseModel
 
+from locnerf.errors import LocnerfInputError
 from locnerf.eval.fuzz_payloads import ACCEPTED, TARGETS, FuzzTarget, Hostile
 from locnerf.messages import keys
-from locnerf.errors import LocnerfInputError
 from locnerf.messages.codec import DecodeError, decode
+from locnerf.messages.schemas import FilterStatus, PoseEstimate, ServiceStatus
 from services.filter_loop.__main__ import FilterProcessConfig
 from services.local_hub import LocalHub
 from services.nerf_worker.__main__ import WorkerConfig
 from services.sensor_ingest.__main__ import IngestConfig
 from services.transport import TransportConfig
-from locnerf.messages.schemas import FilterStatus, PoseEstimate, ServiceStatus
 
 logger = logging.getLogger(__name__)
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import math
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -52,9 +52,7 @@ class LoadCaseConfig(BaseModel):
     odometry_rate: float = Field(15.0, gt=0, description="Odometry messages per second (the pose rate).")
     duration: float = Field(20.0, gt=0, description="Measurement window, seconds.")
     warmup: float = Field(3.0, ge=0, description="Seconds after the first pose that are not measured.")
-    settle: float = Field(
-        5.0, ge=0, description="Seconds after the window during which answers to its messages still count (the filter's update_timeout)."
-    )
+    settle: float = Field(5.0, ge=0, description="Seconds after the window during which answers to its messages still count (the filter's update_timeout).")
     map: str = Field("world", description="'world' (the procedural world) or a map file for the filter and workers.")
     device: str = Field("auto", description="Device of the filter and workers: auto, cpu, cuda.")
     seed: int = Field(0, description="Seed of the stream and the filter.")
@@ -123,9 +121,7 @@ def service_configs(case: LoadCaseConfig, folder: Path) -> ServiceConfigs:
         world["distinct_frames"] = OVERLOAD_FRAMES
     prefill = case.prerender and not case.overloaded
     common = {"robot_id": case.robot_id, "seed": case.seed}
-    ingest = IngestConfig(
-        source="world", world=world, speed=1.0, **({"prefetch_events": events, "prefill": True} if prefill else {}), **common
-    )
+    ingest = IngestConfig(source="world", world=world, speed=1.0, **({"prefetch_events": events, "prefill": True} if prefill else {}), **common)
     filter_config = FilterProcessConfig(map=case.map, device=case.device, localizer=str(localizer_file), **common)
     worker = WorkerConfig(map=case.map, device=case.device, robot_id=case.robot_id)
     return ServiceConfigs(ingest, filter_config, worker, case.workers)
@@ -222,20 +218,30 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
     report = recorder.report(start, end, observer_drops=inbox.dropped)
     case_fields = case.model_dump(include={"particles", "pixels", "workers", "camera_rate", "odometry_rate", "overload", "map", "device"})
     usage = memory_over_time(window_memory)
-    return case_fields | {"rays": case.particles * case.pixels} | report | {
-        "processes": {name: process_usage(before[name], after[name]) | usage[name] for name in pids}
-    }
+    return (
+        case_fields
+        | {"rays": case.particles * case.pixels}
+        | report
+        | {"processes": {name: process_usage(before[name], after[name]) | usage[name] for name in pids}}
+    )
 
 
 TABLE_ROWS = (
-    ("update rate", "update_hz", "Hz"), ("update latency p50", "update_latency_p50_ms", "ms"),
-    ("update latency p95", "update_latency_p95_ms", "ms"), ("update latency p99", "update_latency_p99_ms", "ms"),
-    ("worker compute p50", "worker_compute_p50_ms", "ms"), ("pose rate", "pose_rate_hz", "Hz"),
-    ("pose jitter p50", "pose_jitter_p50_ms", "ms"), ("pose jitter p99", "pose_jitter_p99_ms", "ms"),
+    ("update rate", "update_hz", "Hz"),
+    ("update latency p50", "update_latency_p50_ms", "ms"),
+    ("update latency p95", "update_latency_p95_ms", "ms"),
+    ("update latency p99", "update_latency_p99_ms", "ms"),
+    ("worker compute p50", "worker_compute_p50_ms", "ms"),
+    ("pose rate", "pose_rate_hz", "Hz"),
+    ("pose jitter p50", "pose_jitter_p50_ms", "ms"),
+    ("pose jitter p99", "pose_jitter_p99_ms", "ms"),
     ("odometry jitter p99 (source)", "odometry_jitter_p99_ms", "ms"),
-    ("odometry -> pose p50", "end_to_end_latency_p50_ms", "ms"), ("odometry -> pose p99", "end_to_end_latency_p99_ms", "ms"),
-    ("camera frames", "camera_frames", ""), ("dropped frames (newest-only)", "dropped_frames", ""),
-    ("images replaced (filter status)", "images_replaced", ""), ("odometry messages", "odometry_messages", ""),
+    ("odometry -> pose p50", "end_to_end_latency_p50_ms", "ms"),
+    ("odometry -> pose p99", "end_to_end_latency_p99_ms", "ms"),
+    ("camera frames", "camera_frames", ""),
+    ("dropped frames (newest-only)", "dropped_frames", ""),
+    ("images replaced (filter status)", "images_replaced", ""),
+    ("odometry messages", "odometry_messages", ""),
     ("lost messages", "lost_messages", ""),
 )
 
@@ -286,11 +292,25 @@ def run(args: argparse.Namespace) -> int:
     combinations = list(itertools.product(args.workers, args.particles, args.pixels))
     reports = []
     for workers, particles, pixels in combinations:
-        case = from_flags(LoadCaseConfig, dict(
-            particles=particles, pixels=pixels, workers=workers, camera_rate=args.camera_rate, odometry_rate=args.odometry_rate,
-            duration=args.duration, warmup=args.warmup, map=args.map, device=args.device, seed=args.seed, prerender=not args.render_live,
-            overload=args.overload, memory_period=args.memory_period,
-        ), {"prerender": "--render-live"})
+        case = from_flags(
+            LoadCaseConfig,
+            dict(
+                particles=particles,
+                pixels=pixels,
+                workers=workers,
+                camera_rate=args.camera_rate,
+                odometry_rate=args.odometry_rate,
+                duration=args.duration,
+                warmup=args.warmup,
+                map=args.map,
+                device=args.device,
+                seed=args.seed,
+                prerender=not args.render_live,
+                overload=args.overload,
+                memory_period=args.memory_period,
+            ),
+            {"prerender": "--render-live"},
+        )
         report = run_case(case, args.out / f"w{workers}_p{particles}_m{pixels}")
         reports.append(report)
         if not args.json:

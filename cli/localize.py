@@ -56,7 +56,14 @@ def run(args: argparse.Namespace) -> int:
     localizer = Localizer(config, generator, device=device)
     views = target_views(radiance_map, args.trials, generator)
     results = run_trials(views, radiance_map, localizer, trial_config, show_progress=not args.json, total=args.trials)
-    summary = summarize(results) | {"map": args.map, "protocol": args.protocol, "seed": args.seed, "particles": config.particles, "updates": trial_config.updates, "device": str(device)}
+    summary = summarize(results) | {
+        "map": args.map,
+        "protocol": args.protocol,
+        "seed": args.seed,
+        "particles": config.particles,
+        "updates": trial_config.updates,
+        "device": str(device),
+    }
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

@@ -103,7 +103,14 @@ def run_build(args: argparse.Namespace) -> int:
         radiance_map = load_nerf_pytorch_checkpoint(args.checkpoint, info, train.white_background, device)
     else:
         field = GridFieldConfig() if args.voxels is None else from_flags(GridFieldConfig, {"voxels": args.voxels})
-        values = {"steps": args.steps, "minutes": args.minutes, "seed": args.seed, "field": field, "use_depth": not args.no_depth, "depth_weight": args.depth_weight}
+        values = {
+            "steps": args.steps,
+            "minutes": args.minutes,
+            "seed": args.seed,
+            "field": field,
+            "use_depth": not args.no_depth,
+            "depth_weight": args.depth_weight,
+        }
         config = from_flags(BuildConfig, values, {"use_depth": "--no-depth"})
         radiance_map = build_map(train, config, device=device, progress=True)
     held_out = _held_out(args.data, args.downscale)

@@ -31,8 +31,8 @@ from locnerf.messages.schemas import FilterStatus, Odometry, PoseEstimate, PoseS
 from services.filter_loop.__main__ import FilterProcessConfig
 from services.local_hub import LocalHub
 from services.nerf_worker.__main__ import WorkerConfig
-from services.sensor_ingest.__main__ import IngestConfig
 from services.runtime import load_service_config
+from services.sensor_ingest.__main__ import IngestConfig
 from services.transport import Inbox
 
 STARTUP_TIMEOUT_S = 180.0
@@ -90,9 +90,7 @@ def up_configs(args: argparse.Namespace) -> ServiceConfigs:
     load = load_service_config
     robot_device = {"robot_id": args.robot_id, "device": args.device}
     worker = load(WorkerConfig, args.worker_config, robot_device)
-    filter_config = load(
-        FilterProcessConfig, args.filter_config, robot_device | {"localizer": args.localizer, "seed": args.seed}
-    )
+    filter_config = load(FilterProcessConfig, args.filter_config, robot_device | {"localizer": args.localizer, "seed": args.seed})
     ingest = load(IngestConfig, args.ingest_config, {"robot_id": args.robot_id, "speed": args.speed, "seed": args.seed})
     stream_seconds = args.duration * args.speed + STREAM_MARGIN_S if args.duration > 0 else ENDLESS_STREAM_S
     return ServiceConfigs(with_stream_length(ingest, stream_seconds), filter_config, worker, args.workers)

@@ -7,5 +7,12 @@ from locnerf.data.seven_scenes import read_seven_scenes
 from locnerf.data.transforms_json import read_nerf_synthetic, read_nerfstudio
 
 __all__ = [
-    "PosedImages", "dataset_format", "normalize_llff_poses", "read_dataset", "read_llff", "read_nerf_synthetic", "read_nerfstudio", "read_seven_scenes",
+    "PosedImages",
+    "dataset_format",
+    "normalize_llff_poses",
+    "read_dataset",
+    "read_llff",
+    "read_nerf_synthetic",
+    "read_nerfstudio",
+    "read_seven_scenes",
 ]

@@ -31,13 +31,13 @@ def dataset_format(path: str | Path) -> str:
         return "nerfstudio"
     if (path / "TrainSplit.txt").is_file() or (path / "TestSplit.txt").is_file():
         return "seven_scenes"
-    raise DatasetError(f"data set {path}: expected poses_bounds.npy (LLFF), transforms_<split>.json (NeRF-synthetic), "
-                     "transforms.json (nerfstudio) or TrainSplit.txt/TestSplit.txt (7-Scenes)")
+    raise DatasetError(
+        f"data set {path}: expected poses_bounds.npy (LLFF), transforms_<split>.json (NeRF-synthetic), "
+        "transforms.json (nerfstudio) or TrainSplit.txt/TestSplit.txt (7-Scenes)"
+    )
 
 
-def read_dataset(
-    path: str | Path, split: str = "train", downscale: int | None = None, skip_missing: bool = False, stride: int = 1
-) -> PosedImages:
+def read_dataset(path: str | Path, split: str = "train", downscale: int | None = None, skip_missing: bool = False, stride: int = 1) -> PosedImages:
     """Read one split of a data set of any supported format.
 
     Args:

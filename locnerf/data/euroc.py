@@ -164,6 +164,8 @@ def read_euroc(root: str | Path, camera: str = "cam0", groundtruth: str | Path |
     truth_stamps, T_world_body = read_groundtruth(Path(groundtruth) if groundtruth else _default_groundtruth(root))
     image_stamps = stamps / NANOSECONDS
     if truth_stamps[0] > image_stamps[-1] or truth_stamps[-1] < image_stamps[0]:
-        raise DatasetError(f"{root}: the ground truth ({truth_stamps[0]:.3f}–{truth_stamps[-1]:.3f} s) does not overlap the images "
-                         f"({image_stamps[0]:.3f}–{image_stamps[-1]:.3f} s)")
+        raise DatasetError(
+            f"{root}: the ground truth ({truth_stamps[0]:.3f}–{truth_stamps[-1]:.3f} s) does not overlap the images "
+            f"({image_stamps[0]:.3f}–{image_stamps[-1]:.3f} s)"
+        )
     return EurocSequence(root, read_camera(folder / "sensor.yaml"), image_stamps, paths, truth_stamps, T_world_body)

@@ -70,7 +70,7 @@ class PosedImages:
     def __len__(self) -> int:
         return self.images.shape[0]
 
-    def subset(self, positions: list[int]) -> "PosedImages":
+    def subset(self, positions: list[int]) -> PosedImages:
         """The images at ``positions`` (0-based positions within this set), everything else shared."""
         index = torch.as_tensor(positions, dtype=torch.long)
         return PosedImages(
@@ -89,6 +89,6 @@ class PosedImages:
             depth_intrinsics=self.depth_intrinsics,
         )
 
-    def without_depth(self) -> "PosedImages":
+    def without_depth(self) -> PosedImages:
         """The same images without their depth images (RGB-only map building)."""
         return replace(self, depths=None, depth_intrinsics=None)

@@ -114,8 +114,10 @@ def read_pose(path: Path) -> np.ndarray:
     rotation = pose[:3, :3]
     error = np.abs(rotation.T @ rotation - np.eye(3)).max()
     if error > RIGID_TOLERANCE or np.linalg.det(rotation) <= 0 or np.abs(pose[3] - (0.0, 0.0, 0.0, 1.0)).max() > RIGID_TOLERANCE:
-        raise DatasetError(f"{path}: not a rigid transform (|RᵀR - I| = {error:.2e}, det {np.linalg.det(rotation):.3f}, "
-                         f"last row {pose[3].tolist()}); expected a rotation, a translation and the row 0 0 0 1")
+        raise DatasetError(
+            f"{path}: not a rigid transform (|RᵀR - I| = {error:.2e}, det {np.linalg.det(rotation):.3f}, "
+            f"last row {pose[3].tolist()}); expected a rotation, a translation and the row 0 0 0 1"
+        )
     return pose
 
 
@@ -137,8 +139,9 @@ def _depth_ratio(colour: tuple[int, int], depth: tuple[int, int], path: Path) ->
     """Integer k with depth size = colour size / k; sizes as (width, height)."""
     ratio = colour[0] // depth[0] if depth[0] else 0
     if ratio < 1 or depth[0] * ratio != colour[0] or depth[1] * ratio != colour[1]:
-        raise DatasetError(f"{path}: depth {depth[0]}x{depth[1]}, expected the colour size {colour[0]}x{colour[1]} "
-                         "divided by an integer (e.g. 320x240 for 640x480)")
+        raise DatasetError(
+            f"{path}: depth {depth[0]}x{depth[1]}, expected the colour size {colour[0]}x{colour[1]} divided by an integer (e.g. 320x240 for 640x480)"
+        )
     return ratio
 
 
@@ -235,8 +238,7 @@ def read_seven_scenes(
     images = stack_same_size([read_rgb(p, float(downscale)) for p in tqdm(paths, desc=f"7-Scenes {split}", unit="frame", leave=False)], paths)
     full = (images.shape[2] * downscale, images.shape[1] * downscale)
     if (round(full[0]), round(full[1])) != (intrinsics.width, intrinsics.height):
-        raise DatasetError(f"{paths[0]}: images about {full[0]}x{full[1]}, expected {intrinsics.width}x{intrinsics.height} "
-                         "for the colour intrinsics given")
+        raise DatasetError(f"{paths[0]}: images about {full[0]}x{full[1]}, expected {intrinsics.width}x{intrinsics.height} for the colour intrinsics given")
     camera = intrinsics.scaled(1.0 / downscale)
     T_world_cam = opencv_to_opengl(torch.from_numpy(poses))
     depth_paths = [stem.with_name(stem.name + ".depth.png") for stem in stems]
@@ -250,15 +252,25 @@ def read_seven_scenes(
         stack = [read_depth(path, depth_stride) for path in depth_paths]
         for path, metres in zip(depth_paths, stack):
             if metres.shape != stack[0].shape:
-                raise DatasetError(f"{path}: depth of size {metres.shape[1] * depth_stride}x{metres.shape[0] * depth_stride}, "
-                                 f"expected {first.shape[1]}x{first.shape[0]} like {depth_paths[0]}")
+                raise DatasetError(
+                    f"{path}: depth of size {metres.shape[1] * depth_stride}x{metres.shape[0] * depth_stride}, "
+                    f"expected {first.shape[1]}x{first.shape[0]} like {depth_paths[0]}"
+                )
         depths = torch.from_numpy(np.stack(stack))
         depth_camera = _depth_camera(folder, intrinsics).scaled(1.0 / (ratio * depth_stride))
     box = scene_box(T_world_cam, depths, depth_camera)
     far = float((box[1] - box[0]).norm())
     normalization = MapNormalization(near=NEAR_M, far=far, up=_up_axis(folder))
-    logger.info("7-Scenes %s %s: %d frames %dx%d, depth %s, box %s", folder, split, len(stems), camera.width, camera.height,
-                "none" if depths is None else f"{depths.shape[2]}x{depths.shape[1]}", box.numpy().round(2).tolist())
+    logger.info(
+        "7-Scenes %s %s: %d frames %dx%d, depth %s, box %s",
+        folder,
+        split,
+        len(stems),
+        camera.width,
+        camera.height,
+        "none" if depths is None else f"{depths.shape[2]}x{depths.shape[1]}",
+        box.numpy().round(2).tolist(),
+    )
     return PosedImages(
         images=torch.from_numpy(images),
         T_world_cam=T_world_cam,

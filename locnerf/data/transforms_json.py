@@ -62,7 +62,10 @@ def _background(background: str | tuple[float, float, float]) -> tuple[float, fl
 
 
 def read_nerf_synthetic(
-    folder: str | Path, split: str = "train", background: str | tuple[float, float, float] = "white", downscale: int = 1,
+    folder: str | Path,
+    split: str = "train",
+    background: str | tuple[float, float, float] = "white",
+    downscale: int = 1,
     skip_missing: bool = False,
 ) -> PosedImages:
     """Read one split of a NeRF-synthetic scene.
@@ -151,8 +154,9 @@ def _undistort(image: np.ndarray, intrinsics: PinholeIntrinsics, distortion: np.
     return cv2.undistort(image, matrix, coefficients, None, matrix)
 
 
-def read_nerfstudio(path: str | Path, downscale: int = 1, split: str = "all", holdout_every: int = HOLDOUT_EVERY,
-                    background: str | tuple[float, float, float] = "white") -> PosedImages:
+def read_nerfstudio(
+    path: str | Path, downscale: int = 1, split: str = "all", holdout_every: int = HOLDOUT_EVERY, background: str | tuple[float, float, float] = "white"
+) -> PosedImages:
     """Read a nerfstudio ``transforms.json`` (or the folder holding it).
 
     All frames must share one camera after undistortion and downscaling. The scene bounds are the

@@ -115,9 +115,7 @@ def _flip(data: bytes, bits: list[int]) -> bytes:
 
 _finite = st.floats(-1e6, 1e6, allow_nan=False)
 _stamps = st.floats(0.0, 1e6, allow_nan=False)
-_absurd_stamps = st.one_of(
-    st.floats(min_value=MAX_ABS_STAMP, allow_infinity=True), st.floats(max_value=-MAX_ABS_STAMP, allow_infinity=True), st.just(math.nan)
-)
+_absurd_stamps = st.one_of(st.floats(min_value=MAX_ABS_STAMP, allow_infinity=True), st.floats(max_value=-MAX_ABS_STAMP, allow_infinity=True), st.just(math.nan))
 _not_finite = st.sampled_from([math.nan, math.inf, -math.inf])
 _versions = st.one_of(
     st.integers(-(2**63), 2**64 - 1).filter(lambda v: v != SCHEMA_VERSION),
@@ -195,15 +193,15 @@ def _envelope_damage(message: type[BaseModel], valid: st.SearchStrategy[BaseMode
 
 def _body(message: type[BaseModel], damage: str, kind: str, fields: st.SearchStrategy[dict[str, Any]], valid: st.SearchStrategy[BaseModel]):
     """Payloads whose body is a valid one with ``fields`` replaced."""
-    return st.tuples(valid, fields).map(
-        lambda pair: Hostile(damage, _envelope(SCHEMA_VERSION, message.__name__, pair[0].model_dump() | pair[1]), kind)
-    )
+    return st.tuples(valid, fields).map(lambda pair: Hostile(damage, _envelope(SCHEMA_VERSION, message.__name__, pair[0].model_dump() | pair[1]), kind))
 
 
 # ---------------------------------------------------------------------------------------------- valid bases
 _odometry = st.builds(lambda s: Odometry(stamp=s, frame_id="odom", T_odom_body=_EYE), _stamps)
 _result = st.builds(
-    lambda rid, n, s: UpdateResult(request_id=rid, shard=0, worker_id="fuzz", epoch=0, generation=0, ids=list(range(n)), log_likelihoods=[-1.0] * n, compute_seconds=s),
+    lambda rid, n, s: UpdateResult(
+        request_id=rid, shard=0, worker_id="fuzz", epoch=0, generation=0, ids=list(range(n)), log_likelihoods=[-1.0] * n, compute_seconds=s
+    ),
     st.text(max_size=16),
     st.integers(0, 8),
     st.floats(0, 10),
@@ -212,7 +210,15 @@ _initial_pose = st.builds(lambda s: InitialPoseCommand(stamp=s, T_world_cam=_EYE
 _global = st.builds(lambda s: GlobalLocalizationCommand(stamp=s), _stamps)
 _request = st.builds(
     lambda rid, n: UpdateRequest(
-        request_id=rid, shard=0, epoch=0, generation=0, ids=list(range(n)), poses=[sum(_EYE, [])] * n, pixels=[[1.0, 1.0]], observed_rgb=[[0.5, 0.5, 0.5]], intrinsics=_INTRINSICS
+        request_id=rid,
+        shard=0,
+        epoch=0,
+        generation=0,
+        ids=list(range(n)),
+        poses=[sum(_EYE, [])] * n,
+        pixels=[[1.0, 1.0]],
+        observed_rgb=[[0.5, 0.5, 0.5]],
+        intrinsics=_INTRINSICS,
     ),
     st.text(max_size=16),
     st.integers(1, 8),
@@ -248,9 +254,9 @@ def _image_payloads() -> st.SearchStrategy[Hostile]:
         ),
         st.tuples(valid, st.integers(1, 16 * 12 * 3)).map(lambda pair: Hostile("truncated_pixels", pair[0][: -pair[1]], "image_size")),
         st.tuples(valid, st.binary(min_size=1, max_size=512)).map(lambda pair: Hostile("extra_pixels", pair[0] + pair[1], "image_size")),
-        st.tuples(_stamps, st.integers(1, 64), st.integers(1, 64)).filter(lambda t: t[1] * t[2] != 16 * 12).map(
-            lambda t: Hostile("size_mismatch", _frame(_header(t[0], t[1], t[2]), bytes(16 * 12 * 3)), "image_size")
-        ),
+        st.tuples(_stamps, st.integers(1, 64), st.integers(1, 64))
+        .filter(lambda t: t[1] * t[2] != 16 * 12)
+        .map(lambda t: Hostile("size_mismatch", _frame(_header(t[0], t[1], t[2]), bytes(16 * 12 * 3)), "image_size")),
         st.tuples(_stamps, st.integers(4097, 1 << 20), st.integers(4097, 1 << 20)).map(
             lambda t: Hostile("oversized", _frame(_header(t[0], t[1], t[2]), bytes(64)), "image_too_large")
         ),
@@ -284,7 +290,9 @@ def _result_payloads() -> st.SearchStrategy[Hostile]:
     return st.one_of(
         _envelope_damage(UpdateResult, _result)
         + [
-            _body(UpdateResult, "ids_vs_likelihoods", "invalid", mismatched.map(lambda t: {"ids": list(range(t[0])), "log_likelihoods": [0.0] * t[1]}), _result),
+            _body(
+                UpdateResult, "ids_vs_likelihoods", "invalid", mismatched.map(lambda t: {"ids": list(range(t[0])), "log_likelihoods": [0.0] * t[1]}), _result
+            ),
             _result.map(lambda r: Hostile("unknown_request_id", _envelope(SCHEMA_VERSION, "UpdateResult", r.model_dump()), "unknown_request")),
         ]
     )

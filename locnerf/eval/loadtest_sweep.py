@@ -6,8 +6,19 @@ import csv
 from pathlib import Path
 
 SWEEP_COLUMNS = (
-    "workers", "particles", "pixels", "rays", "update_hz", "update_latency_p50_ms", "update_latency_p99_ms",
-    "worker_compute_p50_ms", "pose_rate_hz", "pose_jitter_p99_ms", "end_to_end_latency_p99_ms", "dropped_frames", "lost_messages",
+    "workers",
+    "particles",
+    "pixels",
+    "rays",
+    "update_hz",
+    "update_latency_p50_ms",
+    "update_latency_p99_ms",
+    "worker_compute_p50_ms",
+    "pose_rate_hz",
+    "pose_jitter_p99_ms",
+    "end_to_end_latency_p99_ms",
+    "dropped_frames",
+    "lost_messages",
 )
 
 

@@ -57,7 +57,10 @@ def plot_mean_error_against_rays(series: dict[str, tuple[list[int], list[float],
         thousands = [b / 1e3 for b in budgets]
         ax_t.plot(thousands, translation, marker="o", markersize=3, label=name)
         ax_r.plot(thousands, rotation, marker="o", markersize=3, label=name)
-    for axis, threshold, label in ((ax_t, SUCCESS_TRANSLATION, "mean translation error (map units)"), (ax_r, SUCCESS_ROTATION_DEG, "mean rotation error (deg)")):
+    for axis, threshold, label in (
+        (ax_t, SUCCESS_TRANSLATION, "mean translation error (map units)"),
+        (ax_r, SUCCESS_ROTATION_DEG, "mean rotation error (deg)"),
+    ):
         axis.axhline(threshold, color="k", linestyle="--", linewidth=1, label="success threshold")
         axis.set_xscale("log")
         axis.set_yscale("log")

@@ -58,16 +58,15 @@ def logged_views(posed: PosedImages, trials: list[LoggedTrial], held_out: set[in
 def seeded_views(posed: PosedImages, count: int, generator: torch.Generator, held_out: set[int]) -> list[View]:
     """``count`` views of frames drawn uniformly (with replacement) from ``posed``."""
     positions = torch.randint(len(posed), (count,), generator=generator).tolist()
-    return [
-        View(posed.indices[p], posed.names[p], posed.T_world_cam[p].double(), posed.images[p], posed.indices[p] in held_out)
-        for p in positions
-    ]
+    return [View(posed.indices[p], posed.names[p], posed.T_world_cam[p].double(), posed.images[p], posed.indices[p] in held_out) for p in positions]
 
 
 def run_views(views: list[View], radiance_map: RadianceMap, intrinsics: PinholeIntrinsics, localizer: Localizer, config: TrialConfig) -> list[TrialResult]:
     """One trial per view seen by the camera ``intrinsics``; logged views start at the logged offset."""
     return [
-        run_trial(view.image.to(radiance_map.device), intrinsics, view.truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, config, view.offset)
+        run_trial(
+            view.image.to(radiance_map.device), intrinsics, view.truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, config, view.offset
+        )
         for view in views
     ]
 

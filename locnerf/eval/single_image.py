@@ -18,8 +18,8 @@ import logging
 import math
 import statistics
 import time
-from dataclasses import dataclass, field
 from collections.abc import Iterable
+from dataclasses import dataclass, field
 from typing import Literal
 
 import torch

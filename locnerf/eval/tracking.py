@@ -33,6 +33,7 @@ logger = logging.getLogger(__name__)
 
 InitMode = Literal["global", "gaussian"]
 
+
 class StartConfig(BaseModel):
     """Where the particles start."""
 

@@ -10,9 +10,7 @@ from locnerf.eval.plots import save_figure
 from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord
 
 
-def plot_tracking_errors(
-    record: TrackingRecord, converged_at: list[float], criterion: ConvergenceConfig, path: Path, title: str
-) -> Path:
+def plot_tracking_errors(record: TrackingRecord, converged_at: list[float], criterion: ConvergenceConfig, path: Path, title: str) -> Path:
     """Translation and rotation error against time, with convergence and the kidnapping marked.
 
     Args:

@@ -41,7 +41,9 @@ class GridFieldConfig(BaseModel):
     initial_alpha: float = Field(1e-4, gt=0, lt=1, description="Opacity of one step at initialisation (sets the density shift).")
     occupancy_alpha: float = Field(1e-3, gt=0, lt=1, description="A voxel is occupied when one step through it is at least this opaque.")
     termination_transmittance: float = Field(1e-3, gt=0, lt=1, description="Rays stop marching below this transmittance.")
-    render_step_factor: float = Field(2.0, ge=1, description="No-gradient renders sample every render_step_factor · step_ratio voxels (opacity per sample scaled to match).")
+    render_step_factor: float = Field(
+        2.0, ge=1, description="No-gradient renders sample every render_step_factor · step_ratio voxels (opacity per sample scaled to match)."
+    )
     voxel_aspect: tuple[float, float, float] = Field(
         (1.0, 1.0, 1.0),
         description="Voxel edge along (x, y, z) relative to each other; (1, 1, 1) is cubic. Forward-facing (NDC) maps use a coarse"
@@ -303,7 +305,11 @@ class GridField(torch.nn.Module):
         return self.update_occupancy()
 
     def _composite(
-        self, ray_index: torch.Tensor, sample_index: torch.Tensor, points: torch.Tensor, shape: tuple[int, int],
+        self,
+        ray_index: torch.Tensor,
+        sample_index: torch.Tensor,
+        points: torch.Tensor,
+        shape: tuple[int, int],
         view_directions: torch.Tensor,
     ) -> torch.Tensor:
         values = self.sample_grid(points)
@@ -348,7 +354,13 @@ class GridField(torch.nn.Module):
         start = (origins + (t_entry + 0.5 * dt)[:, None] * directions - self.box[0]) * to_vertices
         step = dt[:, None] * directions * to_vertices
         composited, log_transmittance = march(
-            start, step, counts, self._skip_table(), self._shade, 3 + self.config.features, self.config.termination_transmittance,
+            start,
+            step,
+            counts,
+            self._skip_table(),
+            self._shade,
+            3 + self.config.features,
+            self.config.termination_transmittance,
         )
         # Rays that met nothing are the background (or black): decode only the others.
         colour = self.background.expand(len(origins), 3).clone() if self.has_background else torch.zeros_like(origins)

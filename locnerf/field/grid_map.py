@@ -50,7 +50,7 @@ class GridMap(StoredMap):
         }
 
     @classmethod
-    def from_state(cls, state: dict[str, Any], info: MapInfo, device: torch.device) -> "GridMap":
+    def from_state(cls, state: dict[str, Any], info: MapInfo, device: torch.device) -> GridMap:
         """Inverse of :meth:`state`, on ``device``."""
         field = GridField(state["box"], GridFieldConfig.model_validate(state["config"]), state["background"])
         field.resize(tuple(state["resolution"]))

@@ -106,8 +106,15 @@ def _skip_empty(table: SkipTable, rays_table: torch.Tensor, index: torch.Tensor,
 
 
 def march(
-    start: torch.Tensor, step: torch.Tensor, counts: torch.Tensor, table: SkipTable, shade: Shader,
-    channels: int, termination_transmittance: float, block: int = BLOCK_SAMPLES, min_jump: int = MIN_JUMP,
+    start: torch.Tensor,
+    step: torch.Tensor,
+    counts: torch.Tensor,
+    table: SkipTable,
+    shade: Shader,
+    channels: int,
+    termination_transmittance: float,
+    block: int = BLOCK_SAMPLES,
+    min_jump: int = MIN_JUMP,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Composite the occupied samples of every ray front to back, skipping proven-empty stretches.
 

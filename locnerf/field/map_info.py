@@ -53,7 +53,7 @@ class MapInfo:
         }
 
     @classmethod
-    def from_record(cls, record: dict[str, Any]) -> "MapInfo":
+    def from_record(cls, record: dict[str, Any]) -> MapInfo:
         """Inverse of :meth:`to_record`."""
         return cls(
             normalization=MapNormalization.model_validate(record["normalization"]),

@@ -147,7 +147,7 @@ class NerfPytorchMap(StoredMap):
         }
 
     @classmethod
-    def from_state(cls, state: dict[str, Any], info: MapInfo, device: torch.device) -> "NerfPytorchMap":
+    def from_state(cls, state: dict[str, Any], info: MapInfo, device: torch.device) -> NerfPytorchMap:
         """Networks from nerf-pytorch state dicts (a map-file state or a checkpoint's dicts)."""
         coarse, fine = NerfMLP(), NerfMLP()
         coarse.load_state_dict(state["network_fn_state_dict"])

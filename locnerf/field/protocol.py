@@ -43,9 +43,7 @@ class MapNormalization(BaseModel):
     ndc: bool = Field(False, description="Rays are warped to normalised device coordinates (forward-facing LLFF).")
     near: float = Field(0.0, ge=0, description="Near bound of rays in map units (before any NDC warp).")
     far: float = Field(1e3, gt=0, description="Far bound of rays in map units (before any NDC warp).")
-    up: tuple[float, float, float] = Field(
-        (0.0, 1.0, 0.0), description="Unit axis of the map frame opposite to gravity (the yaw axis of global localization)."
-    )
+    up: tuple[float, float, float] = Field((0.0, 1.0, 0.0), description="Unit axis of the map frame opposite to gravity (the yaw axis of global localization).")
 
     def _T_map_dataset(self, like: torch.Tensor) -> torch.Tensor:
         """``T_map_dataset`` (4, 4) in the dtype and on the device of ``like``."""

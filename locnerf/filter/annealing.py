@@ -33,7 +33,7 @@ class AnnealingConfig(BaseModel):
     reduced_particles: int = Field(100, ge=1, description="Particle count in REFINE and SUPER_REFINE (reached by resampling).")
 
     @model_validator(mode="after")
-    def _ordered(self) -> "AnnealingConfig":
+    def _ordered(self) -> AnnealingConfig:
         if self.alpha_super_refine > self.alpha_refine:
             raise ValueError(
                 f"alpha_super_refine={self.alpha_super_refine} > alpha_refine={self.alpha_refine}: expected super-refine threshold <= refine threshold"

@@ -13,7 +13,6 @@ from locnerf.filter.resampling import effective_sample_size
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.geometry.so3 import hat
 
-
 ROTATION_MEAN_TOLERANCE = 1e-7
 """Radians: the mean rotation's last update is smaller than this (0.02 arcsecond). The filter
 computes an estimate for every pose it publishes; widely spread particles need ~18 fixed-point

@@ -81,9 +81,7 @@ def kld_sample_size(cells: torch.Tensor, config: KldConfig, max_particles: int) 
     return int(hits[0]) + 1 if hits.numel() else min(count, max_particles)
 
 
-def kld_resample(
-    weights: torch.Tensor, poses: torch.Tensor, config: KldConfig, max_particles: int, resampler, generator: torch.Generator
-) -> torch.Tensor:
+def kld_resample(weights: torch.Tensor, poses: torch.Tensor, config: KldConfig, max_particles: int, resampler, generator: torch.Generator) -> torch.Tensor:
     """Indices (n,) int64 of the particles kept, ``min_particles ≤ n ≤ max_particles``.
 
     Args:

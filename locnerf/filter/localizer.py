@@ -189,9 +189,7 @@ class Localizer:
 
     def initialize_inerf(self, center: torch.Tensor, translation_half_width: float = 0.1, max_angle_deg: float = 40.0) -> None:
         """Particles spread by the iNeRF protocol around ``center`` (4, 4)."""
-        self.initialize(
-            initialization.inerf_particles(center, self.config.particles, self.generator, translation_half_width, max_angle_deg)
-        )
+        self.initialize(initialization.inerf_particles(center, self.config.particles, self.generator, translation_half_width, max_angle_deg))
 
     def initialize_global(self, center: torch.Tensor, half_width: float = 1.0, up: tuple[float, float, float] = (0.0, 1.0, 0.0)) -> None:
         """The paper's global protocol: cube of side 2·half_width around ``center``, yaw uniform."""
@@ -371,9 +369,7 @@ class Localizer:
         if injected > 0:
             estimate = estimate_from_particles(particles, self.stage).pose
             candidates = find_candidates() if find_candidates is not None else None
-            fresh = injection_poses(
-                plan, injected, self.config.recovery, estimate, self.region.bounds(), self.region.up, self.generator, candidates
-            )
+            fresh = injection_poses(plan, injected, self.config.recovery, estimate, self.region.bounds(), self.region.up, self.generator, candidates)
             replaced = torch.randperm(target, generator=self.generator)[:injected].to(self.device)
             poses[replaced] = fresh.to(self.device, self.dtype)
             parents[replaced] = NO_ANCESTOR
@@ -395,16 +391,20 @@ class Localizer:
         if image.ndim != 3 or image.shape[-1] != 3:
             raise ValueError(f"image: expected shape (H, W, 3), got {tuple(image.shape)}")
         if (image.shape[0], image.shape[1]) != (intrinsics.height, intrinsics.width):
-            raise ValueError(
-                f"image size {image.shape[1]}×{image.shape[0]} does not match the intrinsics {intrinsics.width}×{intrinsics.height}"
-            )
+            raise ValueError(f"image size {image.shape[1]}×{image.shape[0]} does not match the intrinsics {intrinsics.width}×{intrinsics.height}")
         self.seed_from_image(image, intrinsics)
         snap = self.snapshot()
         config = self.config.measurement
         pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
         colours = observed_colours(image, pixels)
         log_likelihoods = particle_log_likelihoods(
-            snap.poses, pixels.to(self.device), colours.to(self.device), intrinsics, render_rays, config.exponent, config.ray_chunk,
+            snap.poses,
+            pixels.to(self.device),
+            colours.to(self.device),
+            intrinsics,
+            render_rays,
+            config.exponent,
+            config.ray_chunk,
             config.exposure_gain_range,
         )
         return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics))

@@ -53,9 +53,7 @@ class MeasurementConfig(BaseModel):
         "gradient", description="How the M pixels are drawn: uniform (the original) or weighted by image gradient (module docstring)."
     )
     gradient_share: float = Field(0.75, ge=0, le=1, description="gradient sampling: fraction of the M pixels drawn by gradient weight.")
-    ray_chunk: int = Field(
-        65536, ge=1, description="Rays per render call; bounds memory when particles × pixels is large."
-    )
+    ray_chunk: int = Field(65536, ge=1, description="Rays per render call; bounds memory when particles × pixels is large.")
     ray_budget: int | None = Field(
         None,
         ge=1,
@@ -66,14 +64,15 @@ class MeasurementConfig(BaseModel):
     min_pixels: int = Field(16, ge=1, description="ray_budget: fewest pixels an update looks at, however many particles.")
 
     exposure_gain_range: tuple[float, float] | None = Field(
-        None, description="Exposure-invariant likelihood (module docstring): the per-particle, per-channel gain fitted to the"
+        None,
+        description="Exposure-invariant likelihood (module docstring): the per-particle, per-channel gain fitted to the"
         " observed pixels is clamped to [low, high] (e.g. (0.5, 2.0)); None compares renders as they are (the original)."
         " Applied by the in-process localizer (eval single-image, global, tracking without --live); the live services'"
-        " update requests do not carry it."
+        " update requests do not carry it.",
     )
 
     @model_validator(mode="after")
-    def _check_gain_range(self) -> "MeasurementConfig":
+    def _check_gain_range(self) -> MeasurementConfig:
         if self.exposure_gain_range is not None:
             low, high = self.exposure_gain_range
             if not 0 < low <= 1 <= high:
@@ -232,9 +231,7 @@ def particle_log_likelihoods(
     origins, directions = rays_from_poses_and_pixels(poses, pixels, intrinsics)
     flat_origins, flat_dirs = origins.reshape(-1, 3), directions.reshape(-1, 3)
     with torch.no_grad():
-        rendered = torch.cat(
-            [render_rays(flat_origins[i : i + ray_chunk], flat_dirs[i : i + ray_chunk]) for i in range(0, len(flat_origins), ray_chunk)]
-        )
+        rendered = torch.cat([render_rays(flat_origins[i : i + ray_chunk], flat_dirs[i : i + ray_chunk]) for i in range(0, len(flat_origins), ray_chunk)])
     rendered = rendered.reshape(poses.shape[0], count, 3)
     observed = observed_rgb.to(rendered.device, rendered.dtype)
     if exposure_gain_range is None:

@@ -31,12 +31,8 @@ class MotionNoiseConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    rotation_sigma: Triple = Field(
-        (0.02, 0.02, 0.02), description="σ_R per rotation axis (x, y, z of the camera), radians."
-    )
-    translation_sigma: Triple = Field(
-        (0.01, 0.01, 0.01), description="σ_t per translation axis (x, y, z of the camera), map units."
-    )
+    rotation_sigma: Triple = Field((0.02, 0.02, 0.02), description="σ_R per rotation axis (x, y, z of the camera), radians.")
+    translation_sigma: Triple = Field((0.01, 0.01, 0.01), description="σ_t per translation axis (x, y, z of the camera), map units.")
 
     @field_validator("rotation_sigma", "translation_sigma")
     @classmethod
@@ -61,7 +57,7 @@ class MotionNoiseConfig(BaseModel):
         """(6,) float64 standard deviations (rotation, translation), multiplied by ``scale``."""
         return torch.tensor(self.rotation_sigma + self.translation_sigma, dtype=torch.float64) * scale
 
-    def pivot_noise(self, scale: float = 1.0) -> "PivotNoise | None":
+    def pivot_noise(self, scale: float = 1.0) -> PivotNoise | None:
         """The pivot noise with its σ multiplied by ``scale``; None when there is none."""
         if max(self.pivot_sigma) == 0.0:
             return None

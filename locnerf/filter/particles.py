@@ -52,7 +52,7 @@ class ParticleSet:
         return self.poses[:, :3, 3]
 
     @classmethod
-    def from_poses(cls, poses: torch.Tensor, first_id: int = 0, generation: int = 0) -> "ParticleSet":
+    def from_poses(cls, poses: torch.Tensor, first_id: int = 0, generation: int = 0) -> ParticleSet:
         """Equally weighted particles with ids ``first_id .. first_id + N - 1`` and no parents."""
         validate_poses(poses, name="particle poses")
         if poses.ndim != 3:

@@ -51,7 +51,9 @@ class RecoveryConfig(BaseModel):
     alpha_fast: float = Field(0.5, gt=0, le=1, description="Rate of the short-term likelihood average (per update).")
     max_fraction: float = Field(0.5, ge=0, le=1, description="Upper bound on the fraction of particles replaced per update.")
     tolerance: float = Field(
-        0.0, ge=0, description="Drop (nats) of the fast average below the slow one that is tolerated: the fraction is 1 − (w_fast/w_slow)·e^tolerance (0: augmented MCL)."
+        0.0,
+        ge=0,
+        description="Drop (nats) of the fast average below the slow one that is tolerated: the fraction is 1 − (w_fast/w_slow)·e^tolerance (0: augmented MCL).",
     )
     local_share: float = Field(
         0.5, ge=0, le=1, description="Share of the injected particles drawn around the current estimate; the rest are uniform over the search region."
@@ -62,9 +64,7 @@ class RecoveryConfig(BaseModel):
     local_yaw_deg: float = Field(
         10.0, ge=0, le=180, description="ψ_0: bound (degrees) of the yaw offset from the estimate at the first injecting update of a streak."
     )
-    local_growth: float = Field(
-        1.5, ge=1, description="g: factor by which the local radius and yaw bound grow with each further consecutive injecting update."
-    )
+    local_growth: float = Field(1.5, ge=1, description="g: factor by which the local radius and yaw bound grow with each further consecutive injecting update.")
     local_max_radius: float = Field(2.0, gt=0, description="r_max: upper bound on the local radius, map units.")
     keyframe_share: float = Field(
         0.0, ge=0, le=1, description="Share of the injected particles drawn around the keyframes that best match the image (when a keyframe index is given)."
@@ -76,7 +76,7 @@ class RecoveryConfig(BaseModel):
     keyframe_rotation_sigma_deg: float = Field(5.0, ge=0, description="Rotation standard deviation around a keyframe per axis, degrees.")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "RecoveryConfig":
+    def _consistent(self) -> RecoveryConfig:
         if self.alpha_fast <= self.alpha_slow:
             raise ValueError(f"alpha_fast={self.alpha_fast} <= alpha_slow={self.alpha_slow}: expected alpha_fast > alpha_slow")
         if self.local_max_radius < self.local_radius:
@@ -157,9 +157,7 @@ class KeyframeCandidates:
     spacing: float
 
 
-def keyframe_particles(
-    candidates: KeyframeCandidates, count: int, position_sigma: float, rotation_sigma: float, generator: torch.Generator
-) -> torch.Tensor:
+def keyframe_particles(candidates: KeyframeCandidates, count: int, position_sigma: float, rotation_sigma: float, generator: torch.Generator) -> torch.Tensor:
     """``count`` poses ``K_j · Exp(δ)`` spread equally over the candidates ``K_j`` (best first for
     the remainder), δ ~ N(0, diag(rotation_sigma² I₃, position_sigma² I₃)) in the keyframe's frame.
 

@@ -6,7 +6,8 @@ differ from N: the annealing reduces the particle count by resampling), and a ``
 
 from __future__ import annotations
 
-from typing import Callable, Literal
+from collections.abc import Callable
+from typing import Literal
 
 import torch
 

@@ -86,9 +86,7 @@ def _times_exp(mean: tuple[float, float, float, float], step: list[float]) -> tu
     return product[0] / norm, product[1] / norm, product[2] / norm, product[3] / norm
 
 
-def _geodesic_mean_and_residuals(
-    rotations: torch.Tensor, w: torch.Tensor, tolerance: float, max_iterations: int
-) -> tuple[torch.Tensor, torch.Tensor]:
+def _geodesic_mean_and_residuals(rotations: torch.Tensor, w: torch.Tensor, tolerance: float, max_iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
     """The iteration of :func:`geodesic_rotation_mean` on normalised weights ``w`` (N,).
 
     Iterates on quaternions (the R_i converted once; the mean kept as four floats), which is the
@@ -144,9 +142,7 @@ def weighted_pose_mean(poses: torch.Tensor, weights: torch.Tensor | None = None)
     return weighted_pose_mean_and_covariance(poses, weights)[0]
 
 
-def weighted_pose_mean_and_covariance(
-    poses: torch.Tensor, weights: torch.Tensor | None = None, tolerance: float = 1e-9
-) -> tuple[torch.Tensor, torch.Tensor]:
+def weighted_pose_mean_and_covariance(poses: torch.Tensor, weights: torch.Tensor | None = None, tolerance: float = 1e-9) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`weighted_pose_mean` (4, 4) and :func:`tangent_covariance` (6, 6) about it, sharing the rotation residuals.
 
     ``tolerance`` is the rotation mean's (:func:`geodesic_rotation_mean`).

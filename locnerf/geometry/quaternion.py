@@ -36,9 +36,7 @@ def matrix_to_quaternion(rotation: torch.Tensor) -> torch.Tensor:
     """
     m = rotation
     m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
-    pivots = torch.stack(
-        (1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22), dim=-1
-    )
+    pivots = torch.stack((1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22), dim=-1)
     d21, d12 = m[..., 2, 1], m[..., 1, 2]
     d02, d20 = m[..., 0, 2], m[..., 2, 0]
     d10, d01 = m[..., 1, 0], m[..., 0, 1]

@@ -32,13 +32,22 @@ UPDATE_REQUEST = Topic("update/request/{worker_id}", schemas.UpdateRequest.__nam
 UPDATE_RESULT = Topic("update/result", schemas.UpdateResult.__name__, "nerf_worker", "log-likelihoods of a shard")
 WORKER_ALIVE = Topic("alive/worker/{worker_id}/{device}", "liveliness token", "nerf_worker", "a live worker and its device")
 INITIAL_POSE = Topic("command/initial_pose", schemas.InitialPoseCommand.__name__, "operator (locnerf send)", "re-initialise around a pose")
-GLOBAL_LOCALIZATION = Topic(
-    "command/global_localization", schemas.GlobalLocalizationCommand.__name__, "operator (locnerf send)", "re-initialise over the map"
-)
+GLOBAL_LOCALIZATION = Topic("command/global_localization", schemas.GlobalLocalizationCommand.__name__, "operator (locnerf send)", "re-initialise over the map")
 
 TABLE: tuple[Topic, ...] = (
-    IMAGE, ODOMETRY, GROUND_TRUTH, POSE, PARTICLES, STATUS, WORKER_STATUS, INGEST_STATUS, UPDATE_REQUEST, UPDATE_RESULT, WORKER_ALIVE,
-    INITIAL_POSE, GLOBAL_LOCALIZATION,
+    IMAGE,
+    ODOMETRY,
+    GROUND_TRUTH,
+    POSE,
+    PARTICLES,
+    STATUS,
+    WORKER_STATUS,
+    INGEST_STATUS,
+    UPDATE_REQUEST,
+    UPDATE_RESULT,
+    WORKER_ALIVE,
+    INITIAL_POSE,
+    GLOBAL_LOCALIZATION,
 )
 
 

@@ -78,11 +78,9 @@ class ImageHeader(Stamped):
     intrinsics: PinholeIntrinsics = Field(description="Camera intrinsics of this frame (OpenCV pixel-centre convention).")
 
     @model_validator(mode="after")
-    def _size_matches_intrinsics(self) -> "ImageHeader":
+    def _size_matches_intrinsics(self) -> ImageHeader:
         if (self.width, self.height) != (self.intrinsics.width, self.intrinsics.height):
-            raise ValueError(
-                f"image size {self.width}×{self.height} does not match the intrinsics {self.intrinsics.width}×{self.intrinsics.height}"
-            )
+            raise ValueError(f"image size {self.width}×{self.height} does not match the intrinsics {self.intrinsics.width}×{self.intrinsics.height}")
         return self
 
 
@@ -137,7 +135,7 @@ class ParticleCloud(Stamped):
     weights: list[float] = Field(description="(N,) normalised particle weights.")
 
     @model_validator(mode="after")
-    def _lengths(self) -> "ParticleCloud":
+    def _lengths(self) -> ParticleCloud:
         if len(self.positions) != len(self.weights) or any(len(p) != 3 for p in self.positions):
             raise ValueError(f"particle cloud: expected positions (N, 3) and weights (N,), got {len(self.positions)} and {len(self.weights)}")
         return self
@@ -186,7 +184,7 @@ class UpdateRequest(_Wire):
     exponent: float = Field(4.0, gt=0, description="γ of the likelihood (M / SSE)^γ.")
 
     @model_validator(mode="after")
-    def _shapes(self) -> "UpdateRequest":
+    def _shapes(self) -> UpdateRequest:
         if len(self.poses) != len(self.ids) or any(len(p) != 16 for p in self.poses):
             raise ValueError(f"update request: expected poses (K, 16) for K={len(self.ids)} ids")
         if len(self.pixels) != len(self.observed_rgb) or any(len(p) != 2 for p in self.pixels) or any(len(c) != 3 for c in self.observed_rgb):
@@ -207,7 +205,7 @@ class UpdateResult(_Wire):
     compute_seconds: float = Field(ge=0, description="Worker time spent on the shard.")
 
     @model_validator(mode="after")
-    def _lengths(self) -> "UpdateResult":
+    def _lengths(self) -> UpdateResult:
         if len(self.ids) != len(self.log_likelihoods):
             raise ValueError(f"update result: {len(self.ids)} ids but {len(self.log_likelihoods)} log-likelihoods")
         return self

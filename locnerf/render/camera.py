@@ -24,7 +24,7 @@ class PinholeIntrinsics(BaseModel):
     height: int = Field(gt=0, description="Image height, pixels.")
 
     @model_validator(mode="after")
-    def _finite(self) -> "PinholeIntrinsics":
+    def _finite(self) -> PinholeIntrinsics:
         for name in ("fx", "fy", "cx", "cy"):
             value = getattr(self, name)
             if value != value or value in (float("inf"), float("-inf")):
@@ -32,14 +32,14 @@ class PinholeIntrinsics(BaseModel):
         return self
 
     @classmethod
-    def from_fov(cls, width: int, height: int, horizontal_fov_rad: float) -> "PinholeIntrinsics":
+    def from_fov(cls, width: int, height: int, horizontal_fov_rad: float) -> PinholeIntrinsics:
         """Square pixels, principal point at ``(W/2, H/2)``, focal from the horizontal field of view."""
         import math
 
         focal = 0.5 * width / math.tan(0.5 * horizontal_fov_rad)
         return cls(fx=focal, fy=focal, cx=width / 2.0, cy=height / 2.0, width=width, height=height)
 
-    def scaled(self, factor: float) -> "PinholeIntrinsics":
+    def scaled(self, factor: float) -> PinholeIntrinsics:
         """Intrinsics of the image resized by ``factor`` (e.g. 0.25 for a 4× downscale)."""
         return PinholeIntrinsics(
             fx=self.fx * factor,

@@ -26,9 +26,7 @@ def camera_directions_from_pixels(pixels: torch.Tensor, intrinsics: PinholeIntri
     return torch.stack((x, y, -torch.ones_like(x)), dim=-1)
 
 
-def rays_from_poses_and_pixels(
-    T_world_cam: torch.Tensor, pixels: torch.Tensor, intrinsics: PinholeIntrinsics
-) -> tuple[torch.Tensor, torch.Tensor]:
+def rays_from_poses_and_pixels(T_world_cam: torch.Tensor, pixels: torch.Tensor, intrinsics: PinholeIntrinsics) -> tuple[torch.Tensor, torch.Tensor]:
     """World-frame rays through the same pixels from every pose.
 
     Args:

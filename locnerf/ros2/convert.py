@@ -70,7 +70,9 @@ def pose_from_message(pose: object) -> torch.Tensor:
     q = torch.tensor([pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z], dtype=torch.float64)
     t = torch.tensor([pose.position.x, pose.position.y, pose.position.z], dtype=torch.float64)
     if not (torch.isfinite(q).all() and torch.isfinite(t).all()) or float(torch.linalg.vector_norm(q)) < 1e-9:
-        raise DecodeError("ros2_invalid", f"pose with position {t.tolist()} and quaternion (w, x, y, z) {q.tolist()}: expected finite values and a non-zero quaternion")
+        raise DecodeError(
+            "ros2_invalid", f"pose with position {t.tolist()} and quaternion (w, x, y, z) {q.tolist()}: expected finite values and a non-zero quaternion"
+        )
     return make_pose(quaternion_to_matrix(q), t)
 
 

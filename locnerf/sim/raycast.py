@@ -55,7 +55,9 @@ def nearest_box_hit(origins: torch.Tensor, directions: torch.Tensor, box_min: to
     return t.min(dim=0)
 
 
-def room_exit_hit(origins: torch.Tensor, directions: torch.Tensor, room_min: torch.Tensor, room_max: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def room_exit_hit(
+    origins: torch.Tensor, directions: torch.Tensor, room_min: torch.Tensor, room_max: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Where rays leave the inside of a room box: (t (R,), axis (R,), side (R,) 0 for min, 1 for max).
 
     ``t`` is inf for rays that never meet the room from the inside.

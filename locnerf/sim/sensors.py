@@ -42,9 +42,7 @@ class VioConfig(BaseModel):
     translation_noise: float = Field(2e-3, ge=0, description="Std of the white translation noise on each increment, metres per axis.")
 
 
-def simulate_odometry(
-    true_poses: torch.Tensor, config: VioConfig, generator: torch.Generator, start: torch.Tensor | None = None
-) -> torch.Tensor:
+def simulate_odometry(true_poses: torch.Tensor, config: VioConfig, generator: torch.Generator, start: torch.Tensor | None = None) -> torch.Tensor:
     """Drifting odometry ``T_odom_body`` (K, 4, 4) float64 from true body poses ``T_world_body`` (K, 4, 4) at the VIO rate.
 
     Args:

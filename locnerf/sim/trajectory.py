@@ -64,9 +64,7 @@ class FigureEightTrajectory:
         w = 2 * math.pi / c.period
         phase = w * t
         centre = torch.tensor(c.centre, dtype=torch.float64)
-        offset = torch.stack(
-            [c.amplitude_x * torch.sin(phase), c.amplitude_height * torch.sin(3 * phase), c.amplitude_z * torch.sin(2 * phase)], dim=-1
-        )
+        offset = torch.stack([c.amplitude_x * torch.sin(phase), c.amplitude_height * torch.sin(3 * phase), c.amplitude_z * torch.sin(2 * phase)], dim=-1)
         velocity = torch.stack(
             [c.amplitude_x * w * torch.cos(phase), 3 * c.amplitude_height * w * torch.cos(3 * phase), 2 * c.amplitude_z * w * torch.cos(2 * phase)],
             dim=-1,

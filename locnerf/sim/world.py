@@ -67,7 +67,7 @@ class ProceduralWorld:
         self._intrinsics = PinholeIntrinsics.from_fov(self.config.image_width, self.config.image_height, math.radians(self.config.horizontal_fov_deg))
 
     @classmethod
-    def default(cls, device: torch.device | str = "cpu") -> "ProceduralWorld":
+    def default(cls, device: torch.device | str = "cpu") -> ProceduralWorld:
         """The deterministic default world."""
         return cls(WorldConfig(), device)
 
@@ -157,9 +157,11 @@ class ProceduralWorld:
             # OpenGL cameras look along -z with y up: yaw about the world y axis, then pitch about
             # the camera's x axis, then roll about its z axis.
             yaw, pitch, roll = angles.tolist()
-            rotation = so3_exp(torch.tensor([0.0, yaw, 0.0], dtype=torch.float64)) @ so3_exp(
-                torch.tensor([pitch, 0.0, 0.0], dtype=torch.float64)
-            ) @ so3_exp(torch.tensor([0.0, 0.0, roll], dtype=torch.float64))
+            rotation = (
+                so3_exp(torch.tensor([0.0, yaw, 0.0], dtype=torch.float64))
+                @ so3_exp(torch.tensor([pitch, 0.0, 0.0], dtype=torch.float64))
+                @ so3_exp(torch.tensor([0.0, 0.0, roll], dtype=torch.float64))
+            )
             pose = make_pose(rotation, position)
             if not bool(self.is_free(position[None], clearance=0.3)[0]):
                 continue

@@ -107,8 +107,10 @@ class BuildConfig(BaseModel):
     )
     depth_seed_points: int = Field(2_000_000, gt=0, description="Most depth points used for seeding (an evenly spaced subset).")
     exposure_learning_rate: float | None = Field(
-        None, gt=0, description="Adam learning rate of a per-training-image colour gain and bias applied to renders in training only"
-        " (train/exposure.py: absorbs auto-exposure so the field stores one appearance); None: off."
+        None,
+        gt=0,
+        description="Adam learning rate of a per-training-image colour gain and bias applied to renders in training only"
+        " (train/exposure.py: absorbs auto-exposure so the field stores one appearance); None: off.",
     )
     tv_weight: float = Field(0.0, ge=0, description="Weight of the grid's total variation (train/total_variation.py) beside the colour MSE; 0: off.")
     tv_vertices: int = Field(32768, gt=0, description="Random vertices per step at which the total variation is evaluated.")
@@ -287,16 +289,26 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
         smoothed_mse = mse if smoothed_mse is None else 0.95 * smoothed_mse + 0.05 * mse
         bar.update(1)
         if step % 20 == 0:
-            bar.set_postfix(loss=f"{mse:.5f}", psnr=f"{psnr_from_mse(smoothed_mse):.2f}", **({"depth_rmse": f"{depth_history[-1] ** 0.5:.3f}"} if depth_history else {}))
+            bar.set_postfix(
+                loss=f"{mse:.5f}", psnr=f"{psnr_from_mse(smoothed_mse):.2f}", **({"depth_rmse": f"{depth_history[-1] ** 0.5:.3f}"} if depth_history else {})
+            )
     bar.close()
     field.update_occupancy(config.final_occupancy_alpha)
     seconds = time.monotonic() - start
-    info.metadata.update(config=config.model_dump(mode="json"), steps=step, seconds=round(seconds, 1), train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3), resolution=list(field.resolution),
-                         depth_supervised=depth_rays is not None)
+    info.metadata.update(
+        config=config.model_dump(mode="json"),
+        steps=step,
+        seconds=round(seconds, 1),
+        train_psnr=round(psnr_from_mse(smoothed_mse or 1.0), 3),
+        resolution=list(field.resolution),
+        depth_supervised=depth_rays is not None,
+    )
     if depth_history:
         window = min(50, len(depth_history))
-        info.metadata.update(train_depth_rmse_first=round((sum(depth_history[:window]) / window) ** 0.5, 4),
-                             train_depth_rmse_last=round((sum(depth_history[-window:]) / window) ** 0.5, 4))
+        info.metadata.update(
+            train_depth_rmse_first=round((sum(depth_history[:window]) / window) ** 0.5, 4),
+            train_depth_rmse_last=round((sum(depth_history[-window:]) / window) ** 0.5, 4),
+        )
     logger.info("built a grid map in %d steps, %.0f s", step, seconds)
     return GridMap(field.eval(), info)
 

@@ -101,9 +101,7 @@ class FilterDriver:
             for kind, topic in topics.items()
         ]
         handles.append(self.bus.subscribe(keys.key(robot, keys.IMAGE), self._image_arrived))
-        handles.append(
-            self.bus.watch_liveliness(keys.workers_alive_pattern(robot), lambda key, alive: self._arrive(NORMAL, "worker", key, alive))
-        )
+        handles.append(self.bus.watch_liveliness(keys.workers_alive_pattern(robot), lambda key, alive: self._arrive(NORMAL, "worker", key, alive)))
         if self.ros2 is not None:
             self.ros2.subscribe(
                 lambda urgent, kind, key, received: self._arrive(URGENT if urgent else NORMAL, kind, key, received),

@@ -51,6 +51,7 @@ logger = logging.getLogger(__name__)
 Outgoing = list[tuple[str, bytes]]
 """Messages to publish: (key expression, payload bytes) pairs."""
 
+
 class FilterLoopConfig(BaseModel):
     """Timing and fault handling of the filter loop."""
 
@@ -71,12 +72,8 @@ class FilterLoopConfig(BaseModel):
     particles_rate: float = Field(2.0, gt=0, description="Particle clouds published per second.")
     status_rate: float = Field(1.0, gt=0, description="Status messages published per second.")
     state_file: str = Field("", description="File where the last pose is saved and resumed from on restart (empty: none).")
-    max_image_pixels: int = Field(
-        4096 * 4096, gt=0, description="Images whose header declares more pixels than this are dropped unread (bad_image_too_large)."
-    )
-    state_save_rate: float = Field(
-        1.0, gt=0, description="Saves of the state file per second at most (a writer thread does them, off the pose path)."
-    )
+    max_image_pixels: int = Field(4096 * 4096, gt=0, description="Images whose header declares more pixels than this are dropped unread (bad_image_too_large).")
+    state_save_rate: float = Field(1.0, gt=0, description="Saves of the state file per second at most (a writer thread does them, off the pose path).")
     T_body_cam: list[list[float]] = Field(
         default_factory=lambda: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
         description="4×4 pose of the camera (locnerf's OpenGL axes: x right, y up, z back) in the odometry's body frame, metres. "
@@ -229,7 +226,9 @@ class FilterLoop:
             logger.warning("odometry stamps restarted (%.3f after %.3f): treating it as a new odometry session", stamp, latest)
             return True
         if len(run) + 1 >= self.config.odometry_resync:
-            logger.warning("odometry clock stepped back (%d stamps from %.3f before %.3f): new odometry session", len(run) + 1, run[0] if run else stamp, latest)
+            logger.warning(
+                "odometry clock stepped back (%d stamps from %.3f before %.3f): new odometry session", len(run) + 1, run[0] if run else stamp, latest
+            )
             return True
         return False
 

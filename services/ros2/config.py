@@ -19,9 +19,13 @@ class Ros2Config(BaseModel):
     node_name: str = Field("locnerf", description="Node name shown by `ros2 node list`.")
     odometry_topic: str = Field("odom", description="nav_msgs/msg/Odometry of the VIO (pose of base_frame_id in odom_frame_id).")
     image_topic: str = Field("camera/image_raw", description="sensor_msgs/msg/Image (rgb8, bgr8, mono8) or, with compressed, its /compressed topic.")
-    image_transport: Literal["raw", "compressed"] = Field("raw", description="raw: sensor_msgs/msg/Image; compressed: sensor_msgs/msg/CompressedImage (jpeg, png).")
+    image_transport: Literal["raw", "compressed"] = Field(
+        "raw", description="raw: sensor_msgs/msg/Image; compressed: sensor_msgs/msg/CompressedImage (jpeg, png)."
+    )
     camera_info_topic: str = Field("camera/camera_info", description="sensor_msgs/msg/CameraInfo with the intrinsics and distortion of the images.")
-    initial_pose_topic: str = Field("initialpose", description="geometry_msgs/msg/PoseWithCovarianceStamped of base_frame_id in global_frame_id (RViz's 2D Pose Estimate).")
+    initial_pose_topic: str = Field(
+        "initialpose", description="geometry_msgs/msg/PoseWithCovarianceStamped of base_frame_id in global_frame_id (RViz's 2D Pose Estimate)."
+    )
     pose_topic: str = Field("amcl_pose", description="geometry_msgs/msg/PoseWithCovarianceStamped published at the odometry rate.")
     particles_topic: str = Field("particle_cloud", description="geometry_msgs/msg/PoseArray of the particles (base frame poses).")
     tf_topic: str = Field("/tf", description="tf2_msgs/msg/TFMessage carrying global_frame_id -> odom_frame_id.")

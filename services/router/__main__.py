@@ -29,7 +29,9 @@ def parse_override(text: str) -> tuple[str, str]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Command-line options of the router."""
     parser.add_argument("--config", type=Path, default=Path("deploy/zenoh/router.json5"), help="zenohd JSON5 file (default deploy/zenoh/router.json5)")
-    parser.add_argument("--cfg", action="append", default=[], help="KEY:VALUE override as for zenohd, e.g. 'listen/endpoints:[\"tcp/127.0.0.1:7447\"]' (repeatable)")
+    parser.add_argument(
+        "--cfg", action="append", default=[], help="KEY:VALUE override as for zenohd, e.g. 'listen/endpoints:[\"tcp/127.0.0.1:7447\"]' (repeatable)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

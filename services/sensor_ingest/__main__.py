@@ -74,13 +74,9 @@ class IngestConfig(BaseModel):
     )
     speed: float = Field(1.0, ge=0, description="Sensor seconds per wall second (0: as fast as possible).")
     seed: int = Field(0, description="Seed of the noise draws.")
-    wait_for_workers: int = Field(
-        0, ge=0, description="Before streaming, wait until the filter reports this many live workers (0: start at once)."
-    )
+    wait_for_workers: int = Field(0, ge=0, description="Before streaming, wait until the filter reports this many live workers (0: start at once).")
     wait_timeout: float = Field(120.0, gt=0, description="Longest wait for the filter and workers, seconds.")
-    prefetch_events: int = Field(
-        32, ge=0, description="Events produced ahead of their release by a background thread (0: produced inline, between releases)."
-    )
+    prefetch_events: int = Field(32, ge=0, description="Events produced ahead of their release by a background thread (0: produced inline, between releases).")
     prefetch_nice: int = Field(
         10, ge=0, le=19, description="Niceness added to the producing thread: frame rendering yields the CPU to the release of odometry."
     )
@@ -197,7 +193,9 @@ def run(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     bus = open_bus(config.transport.with_environment())
     ingest_id = config.ingest_id or default_instance_id()
-    status = StatusPublisher(bus.publish, keys.key(config.robot_id, keys.INGEST_STATUS, ingest_id=ingest_id), "sensor_ingest", ingest_id, BadMessages("sensor_ingest"))
+    status = StatusPublisher(
+        bus.publish, keys.key(config.robot_id, keys.INGEST_STATUS, ingest_id=ingest_id), "sensor_ingest", ingest_id, BadMessages("sensor_ingest")
+    )
     try:
         if config.wait_for_workers and not wait_for_workers(bus, config.robot_id, config.wait_for_workers, config.wait_timeout, stop, status):
             if stop.is_set():

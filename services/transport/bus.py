@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import collections
 import threading
-from typing import Callable, Generic, Protocol, TypeVar
+from collections.abc import Callable
+from typing import Generic, Protocol, TypeVar
 
 Item = TypeVar("Item")
 SampleCallback = Callable[[str, bytes], None]

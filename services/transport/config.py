@@ -10,9 +10,8 @@ endpoints such as ``tcp/127.0.0.1:7447``); TLS: ``LOCNERF_ZENOH_TLS_ROOT_CA``,
 from __future__ import annotations
 
 import os
-from typing import Literal
-
 from pathlib import Path
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -60,7 +59,7 @@ class TlsConfig(BaseModel):
     mutual: bool = Field(True, description="Mutual TLS: present this certificate when connecting and require one from connecting peers.")
 
     @model_validator(mode="after")
-    def _files(self) -> "TlsConfig":
+    def _files(self) -> TlsConfig:
         _check_pem(self.root_ca, "root_ca", _CERTIFICATE_PEM, "a PEM certificate ('-----BEGIN CERTIFICATE-----')")
         if bool(self.certificate) != bool(self.key):
             raise ValueError(f"TLS certificate {self.certificate!r} and key {self.key!r}: expected both or neither")
@@ -79,9 +78,7 @@ class TransportConfig(BaseModel):
 
     mode: Literal["peer", "client"] = Field("peer", description="Zenoh mode: peer (embedded default) or client (of a zenohd router).")
     connect: tuple[str, ...] = Field((), description="Endpoints to connect to, e.g. tcp/127.0.0.1:7447 or tcp/zenohd:7447.")
-    listen: tuple[str, ...] = Field(
-        ("tcp/127.0.0.1:0",), description="Endpoints to listen on (peer mode); port 0 picks a free port, advertised by gossip."
-    )
+    listen: tuple[str, ...] = Field(("tcp/127.0.0.1:0",), description="Endpoints to listen on (peer mode); port 0 picks a free port, advertised by gossip.")
     multicast_scouting: bool = Field(False, description="UDP multicast discovery (off: endpoints are explicit).")
     block_when_congested: bool = Field(
         False,
@@ -98,7 +95,7 @@ class TransportConfig(BaseModel):
                 raise ValueError(f"endpoint {endpoint!r}: expected <protocol>/<address>, e.g. tcp/127.0.0.1:7447")
         return value
 
-    def with_environment(self, environ: dict[str, str] | None = None) -> "TransportConfig":
+    def with_environment(self, environ: dict[str, str] | None = None) -> TransportConfig:
         """This config with the ``LOCNERF_ZENOH_*`` variables applied."""
         environ = os.environ if environ is None else environ
         updates: dict[str, object] = {}

@@ -23,7 +23,7 @@ def key_matches(key_expr: str, key: str) -> bool:
 
 @dataclass
 class _Registration:
-    bus: "MemoryBus"
+    bus: MemoryBus
     table: list
     entry: tuple
 

@@ -18,7 +18,10 @@ REQUIRED_KEYS = {"success_rate", "median_translation_error", "median_rotation_er
 
 @pytest.mark.parametrize("protocol,updates", [("inerf", 100), ("global", 150)])
 def test_localize_world_prints_the_summary_and_succeeds(protocol, updates, capsys):
-    assert main(["localize", "--map", "world", "--protocol", protocol, "--trials", "2", "--seed", "3", "--updates", str(updates), "--device", "cpu", "--json"]) == 0
+    assert (
+        main(["localize", "--map", "world", "--protocol", protocol, "--trials", "2", "--seed", "3", "--updates", str(updates), "--device", "cpu", "--json"])
+        == 0
+    )
     summary = json.loads(capsys.readouterr().out)
     assert REQUIRED_KEYS <= summary.keys()
     assert summary["trials"] == 2 and summary["protocol"] == protocol

@@ -29,9 +29,27 @@ def test_reduced_experiment_reports_ours_beside_the_logs_and_writes_figures(
     command: str, logs: str, tiny_fern_map: Path, shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     plots = tmp_path / "plots"
-    argv = ["eval", command, "--map", str(tiny_fern_map), "--data", str(shared_data / "llff" / "fern"),
-            "--starts", str(shared_data / "locnerf_logs" / logs), "--trials", "1", "--updates", "2", "--seed", "0",
-            "--device", "cpu", "--plots", str(plots), "--json"]
+    argv = [
+        "eval",
+        command,
+        "--map",
+        str(tiny_fern_map),
+        "--data",
+        str(shared_data / "llff" / "fern"),
+        "--starts",
+        str(shared_data / "locnerf_logs" / logs),
+        "--trials",
+        "1",
+        "--updates",
+        "2",
+        "--seed",
+        "0",
+        "--device",
+        "cpu",
+        "--plots",
+        str(plots),
+        "--json",
+    ]
     assert main(argv) == 0
     report = json.loads(capsys.readouterr().out)
     assert len(report["trials"]) == 6  # five logged starts and one seeded

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from locnerf.eval.paper_logs import read_logged_trials
 from locnerf.geometry import rotation_error_deg, translation_error

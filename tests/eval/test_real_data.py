@@ -44,8 +44,15 @@ def test_mean_error_by_budget_hand_values():
 
 def test_totals_split_held_out_and_logged():
     records = [
-        {"start": "logged", "held_out": False, "success": True, "translation_error": 0.01, "rotation_error_deg": 0.5, "seconds": 2.0,
-         "original_locnerf": {"success": False, "translation_error": 0.5, "rotation_error_deg": 10.0}},
+        {
+            "start": "logged",
+            "held_out": False,
+            "success": True,
+            "translation_error": 0.01,
+            "rotation_error_deg": 0.5,
+            "seconds": 2.0,
+            "original_locnerf": {"success": False, "translation_error": 0.5, "rotation_error_deg": 10.0},
+        },
         {"start": "seeded", "held_out": True, "success": False, "translation_error": 0.2, "rotation_error_deg": 9.0, "seconds": 4.0},
     ]
     summary = totals(records)

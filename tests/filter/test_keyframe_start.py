@@ -7,11 +7,11 @@ import math
 import pytest
 import torch
 
-from locnerf.maps.keyframes import build_keyframe_index
 from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_around_keyframes
 from locnerf.filter.recovery import KeyframeCandidates, RecoveryConfig
 from locnerf.geometry import make_pose, rotation_error_deg, se3_log, so3_exp, translation_error
+from locnerf.maps.keyframes import build_keyframe_index
 from locnerf.sim.world import ProceduralWorld
 
 
@@ -29,7 +29,9 @@ def _far_poses(count: int) -> torch.Tensor:
 
 def test_the_share_of_particles_is_redrawn_around_the_candidates_and_the_rest_kept(generator):
     candidates = KeyframeCandidates(
-        torch.stack([make_pose(so3_exp(torch.tensor([0.0, 0.7 * k, 0.0], dtype=torch.float64)), torch.full((3,), float(k), dtype=torch.float64)) for k in range(3)]),
+        torch.stack(
+            [make_pose(so3_exp(torch.tensor([0.0, 0.7 * k, 0.0], dtype=torch.float64)), torch.full((3,), float(k), dtype=torch.float64)) for k in range(3)]
+        ),
         spacing=0.2,
     )
     recovery = RecoveryConfig(keyframe_position_sigma=0.5, keyframe_rotation_sigma_deg=5.0)

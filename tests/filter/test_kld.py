@@ -74,9 +74,7 @@ def test_tracking_like_posterior_needs_a_few_hundred():
 
 def test_localizer_shrinks_on_convergence_and_late_results_still_merge_by_ancestor():
     generator = torch.Generator().manual_seed(2)
-    config = LocalizerConfig(
-        particles=1500, kld=KLD, convergence_protection=ConvergenceProtectionConfig(count=0), annealing=AnnealingConfig(enabled=False)
-    )
+    config = LocalizerConfig(particles=1500, kld=KLD, convergence_protection=ConvergenceProtectionConfig(count=0), annealing=AnnealingConfig(enabled=False))
     localizer = Localizer(config, generator, dtype=torch.float64)
     start = torch.cat([concentrated(30, generator), spread(1470, generator)])
     localizer.initialize(start)

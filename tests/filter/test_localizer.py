@@ -22,7 +22,10 @@ NO_PROTECTION = ConvergenceProtectionConfig(count=0)
 
 def line_of_particles(count: int) -> torch.Tensor:
     """Particles on the x axis at x = 0, 1, ..., count-1 (identity rotation), float64."""
-    return make_pose(torch.eye(3, dtype=torch.float64).expand(count, 3, 3), torch.stack([torch.arange(count, dtype=torch.float64), torch.zeros(count, dtype=torch.float64), torch.zeros(count, dtype=torch.float64)], -1))
+    return make_pose(
+        torch.eye(3, dtype=torch.float64).expand(count, 3, 3),
+        torch.stack([torch.arange(count, dtype=torch.float64), torch.zeros(count, dtype=torch.float64), torch.zeros(count, dtype=torch.float64)], -1),
+    )
 
 
 def make_localizer(generator, particles=8, **config) -> Localizer:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from locnerf.filter.motion import MotionNoiseConfig, propagate_poses, sample_tangent_noise
 from locnerf.filter.initialization import gaussian_particles
+from locnerf.filter.motion import MotionNoiseConfig, propagate_poses, sample_tangent_noise
 from locnerf.geometry import make_pose, se3_exp, se3_log, so3_exp
 
 

@@ -12,8 +12,6 @@ from locnerf.filter.localizer import ConvergenceProtectionConfig
 from locnerf.filter.motion import MotionNoiseConfig
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses, keyframe_particles
 from locnerf.geometry import make_pose, rotation_error_deg, se3_exp, se3_log, so3_exp, translation_error
-from locnerf.render import PinholeIntrinsics, render_image
-from tests.filter.analytic_field import analytic_render_rays
 
 
 def test_log_averages_match_a_float64_average_in_linear_space():
@@ -52,7 +50,9 @@ def test_disabled_recovery_never_injects():
     assert [monitor.observe(v).fraction for v in (0.0, -80.0, -80.0)] == [0.0, 0.0, 0.0]
 
 
-@pytest.mark.parametrize("fields,message", [({"alpha_slow": 0.5, "alpha_fast": 0.5}, "alpha_fast"), ({"local_radius": 1.0, "local_max_radius": 0.5}, "local_max_radius")])
+@pytest.mark.parametrize(
+    "fields,message", [({"alpha_slow": 0.5, "alpha_fast": 0.5}, "alpha_fast"), ({"local_radius": 1.0, "local_max_radius": 0.5}, "local_max_radius")]
+)
 def test_inconsistent_recovery_settings_are_refused(fields, message):
     with pytest.raises(ValueError, match=message):
         RecoveryConfig(**fields)
@@ -113,8 +113,10 @@ def _kidnapped_run(
     """
     generator = torch.Generator().manual_seed(seed)
     before = _BEFORE
-    after = jump if jump is not None else make_pose(
-        so3_exp(_UP * math.radians(60.0)) @ before[:3, :3], before[:3, 3] + torch.tensor([0.4, 0.0, -0.45], dtype=torch.float64)
+    after = (
+        jump
+        if jump is not None
+        else make_pose(so3_exp(_UP * math.radians(60.0)) @ before[:3, :3], before[:3, 3] + torch.tensor([0.4, 0.0, -0.45], dtype=torch.float64))
     )
     config = LocalizerConfig(
         particles=200,
@@ -170,7 +172,9 @@ def test_keyframe_draws_spread_equally_around_each_candidate(generator):
     """4000 draws over 4 candidates: 1000 each, Gaussian in the keyframe's frame with the given σ
     (standard error of a standard deviation at 1000 draws ~2 %; tolerance 8 %)."""
     candidates = KeyframeCandidates(
-        torch.stack([make_pose(so3_exp(torch.tensor([0.0, 0.5 * k, 0.2], dtype=torch.float64)), torch.full((3,), float(k), dtype=torch.float64)) for k in range(4)]),
+        torch.stack(
+            [make_pose(so3_exp(torch.tensor([0.0, 0.5 * k, 0.2], dtype=torch.float64)), torch.full((3,), float(k), dtype=torch.float64)) for k in range(4)]
+        ),
         spacing=1.0,
     )
     poses = keyframe_particles(candidates, 4000, 0.3, math.radians(5.0), generator)

@@ -62,7 +62,9 @@ def test_ypr_matches_elementary_product_and_round_trips(generator):
     rx = torch.tensor([[1, 0, 0], [0, math.cos(roll), -math.sin(roll)], [0, math.sin(roll), math.cos(roll)]], dtype=torch.float64)
     ypr = torch.tensor([yaw, pitch, roll], dtype=torch.float64)
     assert torch.allclose(ypr_to_matrix(ypr), rz @ ry @ rx, atol=1e-15)
-    angles = (torch.rand(500, 3, dtype=torch.float64, generator=generator) - 0.5) * torch.tensor([2 * math.pi, math.pi * 0.99, 2 * math.pi], dtype=torch.float64)
+    angles = (torch.rand(500, 3, dtype=torch.float64, generator=generator) - 0.5) * torch.tensor(
+        [2 * math.pi, math.pi * 0.99, 2 * math.pi], dtype=torch.float64
+    )
     assert (matrix_to_ypr(ypr_to_matrix(angles)) - angles).abs().max() < 1e-9
 
 

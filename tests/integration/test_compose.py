@@ -137,9 +137,7 @@ def test_ros2_override_is_valid_and_runs_the_filter_with_ros2_and_no_synthetic_i
 
     override = REPO / "deploy/compose.ros2.yml"
     checker = Path(sys.executable).with_name("check-jsonschema")
-    result = subprocess.run(
-        [str(checker), "--builtin-schema", "vendor.compose-spec", str(override)], capture_output=True, text=True, timeout=120
-    )
+    result = subprocess.run([str(checker), "--builtin-schema", "vendor.compose-spec", str(override)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
     services = YAML(typ="safe").load(override.read_text())["services"]
     assert services["ingest"]["profiles"] == ["synthetic"]

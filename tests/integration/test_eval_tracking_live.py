@@ -17,16 +17,45 @@ import sys
 import pytest
 
 HEADLINE_KEYS = (
-    "translation_median", "rotation_median_deg", "converged_after_s", "realtime_factor", "update_hz", "pose_hz",
-    "kidnap_recovery_updates", "kidnap_recovery_s", "start", "kidnap",
+    "translation_median",
+    "rotation_median_deg",
+    "converged_after_s",
+    "realtime_factor",
+    "update_hz",
+    "pose_hz",
+    "kidnap_recovery_updates",
+    "kidnap_recovery_s",
+    "start",
+    "kidnap",
 )
 
 
 @pytest.mark.slow
 def test_live_tracking_in_the_world_reports_every_key_and_tracks(tmp_path):
     command = [
-        sys.executable, "-m", "cli.main", "eval", "tracking", "--map", "world", "--sequence", "world", "--live",
-        "--duration", "14", "--kidnap-at", "12", "--image-rate", "5", "--device", "cpu", "--seed", "0", "--json", "--logs", str(tmp_path),
+        sys.executable,
+        "-m",
+        "cli.main",
+        "eval",
+        "tracking",
+        "--map",
+        "world",
+        "--sequence",
+        "world",
+        "--live",
+        "--duration",
+        "14",
+        "--kidnap-at",
+        "12",
+        "--image-rate",
+        "5",
+        "--device",
+        "cpu",
+        "--seed",
+        "0",
+        "--json",
+        "--logs",
+        str(tmp_path),
     ]
     finished = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert finished.returncode == 0, finished.stderr[-3000:]

@@ -45,7 +45,12 @@ def test_a_worker_killed_mid_update_is_abandoned_and_its_restart_is_used_again(h
 
     # Freeze the only worker so that requests stay in flight, then SIGKILL it.
     stack.processes["wa"].send_signal(signal.SIGSTOP)
-    wait_for(lambda: observer.status.in_flight >= 1 and observer.status.counters.get("updates_started", 0) > merged(observer) + 1, 30, "an update in flight to the frozen worker", stack)
+    wait_for(
+        lambda: observer.status.in_flight >= 1 and observer.status.counters.get("updates_started", 0) > merged(observer) + 1,
+        30,
+        "an update in flight to the frozen worker",
+        stack,
+    )
     first_stamp = observer.poses[-1].stamp
     in_flight = observer.status.in_flight
     stack.kill("wa")

@@ -69,7 +69,10 @@ class RosObserver:
         self.odometry: dict[int, torch.Tensor] = {}
         self.tokens: set[str] = set()
         for name, ros_type in OUTPUTS.items():
-            bus.subscribe_attached(data_key(0, "/" + name, ros_type), lambda _k, payload, attachment, name=name, ros_type=ros_type: self._store(name, ros_type, payload, attachment))
+            bus.subscribe_attached(
+                data_key(0, "/" + name, ros_type),
+                lambda _k, payload, attachment, name=name, ros_type=ros_type: self._store(name, ros_type, payload, attachment),
+            )
         bus.watch_liveliness("@ros2_lv/0/**", lambda key, alive: self._token(key, alive))
 
     def _store(self, name: str, ros_type: str, payload: bytes, attachment: bytes | None) -> None:
@@ -181,7 +184,9 @@ def test_ros2_topics_in_and_out_converge_count_bad_input_and_serve_the_service(h
             tf, cloud = transforms[nanoseconds(pose.header.stamp)], ros.received["particle_cloud"]
         assert (tf.header.frame_id, tf.child_frame_id) == ("map", "odom") and cloud and len(cloud[-1].poses) > 0
         rotation, translation = tf.transform.rotation, tf.transform.translation
-        as_pose = message_class("geometry_msgs/msg/Pose")(position=message_class("geometry_msgs/msg/Point")(translation.x, translation.y, translation.z), orientation=rotation)
+        as_pose = message_class("geometry_msgs/msg/Pose")(
+            position=message_class("geometry_msgs/msg/Point")(translation.x, translation.y, translation.z), orientation=rotation
+        )
         T_odom_base = ros.odometry[nanoseconds(pose.header.stamp)]
         assert torch.allclose(convert.pose_from_message(as_pose) @ T_odom_base, convert.pose_from_message(pose.pose.pose), atol=1e-6)
 

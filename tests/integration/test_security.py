@@ -54,8 +54,18 @@ def test_only_the_operator_commands_and_only_workers_publish_results(hub, certs)
         common = ("--robot-id", ROBOT, "--device", "cpu")
         stack.start("filter", "run", "filter", *common, environment=client_environment(stack, endpoint, certs, "filter"))
         stack.start("worker", "run", "worker", *common, "--worker-id", "w", environment=client_environment(stack, endpoint, certs, "worker"))
-        stack.start("ingest", "run", "ingest", "--robot-id", ROBOT, "--wait-for-workers", "1", "--duration", "300",
-                    environment=client_environment(stack, endpoint, certs, "ingest"))
+        stack.start(
+            "ingest",
+            "run",
+            "ingest",
+            "--robot-id",
+            ROBOT,
+            "--wait-for-workers",
+            "1",
+            "--duration",
+            "300",
+            environment=client_environment(stack, endpoint, certs, "ingest"),
+        )
         wait_for(lambda: observer.counter("updates_merged") >= 2 and len(observer.poses) >= 15, 150, "poses and merged updates under the policy", stack)
         assert observer.poses[-1].epoch == 1
 

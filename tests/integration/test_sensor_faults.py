@@ -87,7 +87,9 @@ def test_odometry_and_camera_outages_and_clock_jumps(hub, tmp_path):
     world, source = ProceduralWorld.default(), WorldSourceConfig(duration=schedule.end)
     start = next(e for e in world_events(world, source, seed=0) if isinstance(e, GroundTruthEvent))
     covariance = torch.diag(torch.tensor([1e-4] * 3 + [1e-4] * 3, dtype=torch.float64))
-    bus.publish(keys.key(ROBOT, keys.INITIAL_POSE), encode(InitialPoseCommand(stamp=0.0, T_world_cam=start.T_world_cam.tolist(), covariance=covariance.tolist())))
+    bus.publish(
+        keys.key(ROBOT, keys.INITIAL_POSE), encode(InitialPoseCommand(stamp=0.0, T_world_cam=start.T_world_cam.tolist(), covariance=covariance.tolist()))
+    )
     wait_for(lambda: observer.status.state == "running", 30, "the initial pose command", stack)
 
     truth: dict[float, torch.Tensor] = {}

@@ -122,7 +122,9 @@ def test_faults_garbage_worker_kill_and_filter_restart(hub, tmp_path):
     # extent and unknown yaw: a trace of 10.3 in the procedural world). The restarted filter starts at full prediction
     # noise (the annealing stage is not saved), so that step may add several times a converged trace.
     ratio = covariance_trace(resumed) / covariance_trace(last)
-    assert 0.5 * covariance_trace(last) < covariance_trace(resumed) < 0.01, f"resumed covariance trace {covariance_trace(resumed):.3g} vs {covariance_trace(last):.3g} saved"
+    assert 0.5 * covariance_trace(last) < covariance_trace(resumed) < 0.01, (
+        f"resumed covariance trace {covariance_trace(resumed):.3g} vs {covariance_trace(last):.3g} saved"
+    )
     report(
         "filter_restart",
         restarts=1,
@@ -156,9 +158,13 @@ def test_send_and_echo_commands(hub, tmp_path):
     pose = [str(x) for row in truth for x in row]
     negative = ["0"] * 36
     negative[0] = "-1"
-    bad = subprocess.run(cli + ["send", "initial-pose", "--pose", *pose, "--covariance", *negative, *connect], capture_output=True, text=True, timeout=120, cwd=REPO)
+    bad = subprocess.run(
+        cli + ["send", "initial-pose", "--pose", *pose, "--covariance", *negative, *connect], capture_output=True, text=True, timeout=120, cwd=REPO
+    )
     assert bad.returncode == 2 and "positive semi-definite" in bad.stderr, bad.stderr
-    good = subprocess.run(cli + ["send", "initial-pose", "--pose", *pose, "--sigma-position", "0.05", *connect], capture_output=True, text=True, timeout=120, cwd=REPO)
+    good = subprocess.run(
+        cli + ["send", "initial-pose", "--pose", *pose, "--sigma-position", "0.05", *connect], capture_output=True, text=True, timeout=120, cwd=REPO
+    )
     assert good.returncode == 0, good.stderr
     wait_for(lambda: observer.poses[-1].epoch == 3, 30, "re-initialisation around the sent pose (epoch 3)", stack)
     with observer.lock:

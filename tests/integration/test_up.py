@@ -21,8 +21,21 @@ UPDATES = 40
 def test_up_runs_everything_and_prints_a_summary(tmp_path):
     plot = tmp_path / "run.png"
     command = [
-        sys.executable, "-m", "cli.main", "up", "--until-updates", str(UPDATES), "--json", "--port", "0", "--seed", "3",
-        "--logs", str(tmp_path), "--plot", str(plot),
+        sys.executable,
+        "-m",
+        "cli.main",
+        "up",
+        "--until-updates",
+        str(UPDATES),
+        "--json",
+        "--port",
+        "0",
+        "--seed",
+        "3",
+        "--logs",
+        str(tmp_path),
+        "--plot",
+        str(plot),
     ]
     result = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=REPO)
     assert result.returncode == 0, result.stderr + "".join(p.read_text()[-2000:] for p in tmp_path.glob("*.log"))

@@ -13,8 +13,25 @@ ISSUE_KEYS = ("update_hz", "update_latency_p99_ms", "pose_rate_hz", "pose_jitter
 
 def test_short_loadtest_reports_every_key_and_loses_nothing(tmp_path):
     command = [
-        sys.executable, "-m", "cli.main", "loadtest", "--particles", "60", "--pixels", "16", "--camera-rate", "5",
-        "--duration", "4", "--warmup", "1", "--device", "cpu", "--out", str(tmp_path), "--json",
+        sys.executable,
+        "-m",
+        "cli.main",
+        "loadtest",
+        "--particles",
+        "60",
+        "--pixels",
+        "16",
+        "--camera-rate",
+        "5",
+        "--duration",
+        "4",
+        "--warmup",
+        "1",
+        "--device",
+        "cpu",
+        "--out",
+        str(tmp_path),
+        "--json",
     ]
     finished = subprocess.run(command, capture_output=True, text=True, timeout=240)
     assert finished.returncode == 0, finished.stderr[-3000:]

@@ -13,8 +13,29 @@ def test_overload_loses_no_odometry_and_replaces_images(tmp_path):
     # 50 Hz images one by one on a quiet machine, and replaced none.) The simulator takes images at odometry
     # stamps, so the camera rate is at most the odometry rate (15 Hz); the removed world stream sent 300 Hz.
     command = [
-        sys.executable, "-m", "cli.main", "loadtest", "--overload", "10", "--particles", "300", "--pixels", "64",
-        "--camera-rate", "15", "--duration", "3", "--warmup", "1", "--memory-period", "1", "--device", "cpu", "--out", str(tmp_path), "--json",
+        sys.executable,
+        "-m",
+        "cli.main",
+        "loadtest",
+        "--overload",
+        "10",
+        "--particles",
+        "300",
+        "--pixels",
+        "64",
+        "--camera-rate",
+        "15",
+        "--duration",
+        "3",
+        "--warmup",
+        "1",
+        "--memory-period",
+        "1",
+        "--device",
+        "cpu",
+        "--out",
+        str(tmp_path),
+        "--json",
     ]
     finished = subprocess.run(command, capture_output=True, text=True, timeout=240)
     assert finished.returncode == 0, finished.stderr[-3000:]

@@ -33,16 +33,21 @@ def image(stamp: float) -> bytes:
 
 def request(request_id: str, shard: int) -> bytes:
     message = UpdateRequest(
-        request_id=request_id, shard=shard, epoch=0, generation=0, ids=[0], poses=[sum(IDENTITY, [])], pixels=[[1.0, 1.0]],
-        observed_rgb=[[0.0, 0.0, 0.0]], intrinsics=INTRINSICS,
+        request_id=request_id,
+        shard=shard,
+        epoch=0,
+        generation=0,
+        ids=[0],
+        poses=[sum(IDENTITY, [])],
+        pixels=[[1.0, 1.0]],
+        observed_rgb=[[0.0, 0.0, 0.0]],
+        intrinsics=INTRINSICS,
     )
     return encode(message)
 
 
 def result(request_id: str, shard: int) -> bytes:
-    message = UpdateResult(
-        request_id=request_id, shard=shard, worker_id="w", epoch=0, generation=0, ids=[0], log_likelihoods=[0.0], compute_seconds=0.01
-    )
+    message = UpdateResult(request_id=request_id, shard=shard, worker_id="w", epoch=0, generation=0, ids=[0], log_likelihoods=[0.0], compute_seconds=0.01)
     return encode(message)
 
 

@@ -9,10 +9,24 @@ from locnerf.eval.loadtest_sweep import SWEEP_COLUMNS, plot_sweep, write_sweep_c
 
 def test_csv_and_png_of_a_sweep(tmp_path):
     rows = [
-        {"workers": w, "particles": p, "pixels": 32, "rays": 32 * p, "update_hz": 10.0 / p * w, "update_latency_p50_ms": p / w,
-         "update_latency_p99_ms": 2 * p / w, "worker_compute_p50_ms": None, "pose_rate_hz": 15.0, "pose_jitter_p99_ms": 1.0,
-         "end_to_end_latency_p99_ms": 2.0, "dropped_frames": 3, "lost_messages": 0, "processes": {}}
-        for w in (1, 2) for p in (100, 300)
+        {
+            "workers": w,
+            "particles": p,
+            "pixels": 32,
+            "rays": 32 * p,
+            "update_hz": 10.0 / p * w,
+            "update_latency_p50_ms": p / w,
+            "update_latency_p99_ms": 2 * p / w,
+            "worker_compute_p50_ms": None,
+            "pose_rate_hz": 15.0,
+            "pose_jitter_p99_ms": 1.0,
+            "end_to_end_latency_p99_ms": 2.0,
+            "dropped_frames": 3,
+            "lost_messages": 0,
+            "processes": {},
+        }
+        for w in (1, 2)
+        for p in (100, 300)
     ]
     with write_sweep_csv(rows, tmp_path / "sweep.csv").open() as handle:
         table = list(csv.DictReader(handle))

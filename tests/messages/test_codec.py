@@ -22,7 +22,15 @@ EXAMPLES = [
     schemas.ParticleCloud(stamp=0.0, positions=[[0.0, 1.0, 2.0]], weights=[1.0]),
     schemas.FilterStatus(stamp=0.0, state="running", rates_hz={"pose": 15.0}, update_latency_s=None, in_flight=0, workers=["a"], counters={"x": 1}),
     schemas.UpdateRequest(
-        request_id="r", shard=0, epoch=1, generation=2, ids=[7], poses=[sum(EYE, [])], pixels=[[1.0, 2.0]], observed_rgb=[[0.1, 0.2, 0.3]], intrinsics=INTRINSICS
+        request_id="r",
+        shard=0,
+        epoch=1,
+        generation=2,
+        ids=[7],
+        poses=[sum(EYE, [])],
+        pixels=[[1.0, 2.0]],
+        observed_rgb=[[0.1, 0.2, 0.3]],
+        intrinsics=INTRINSICS,
     ),
     schemas.UpdateResult(request_id="r", shard=0, worker_id="w", epoch=1, generation=2, ids=[7], log_likelihoods=[-math.inf], compute_seconds=0.1),
     schemas.InitialPoseCommand(stamp=0.0, T_world_cam=EYE, covariance=COV),

@@ -51,8 +51,6 @@ def test_ndc_points_are_projections_of_world_points(generator: torch.Generator) 
     for depth in (1.5, 3.0, 40.0):
         s = (-depth - origins[:, 2]) / directions[:, 2]
         world = origins + s[:, None] * directions
-        expected = torch.stack(
-            (-2 * 400.0 / 500 * world[:, 0] / world[:, 2], -2 * 410.0 / 380 * world[:, 1] / world[:, 2], 1 + 2.0 / world[:, 2]), dim=1
-        )
+        expected = torch.stack((-2 * 400.0 / 500 * world[:, 0] / world[:, 2], -2 * 410.0 / 380 * world[:, 1] / world[:, 2], 1 + 2.0 / world[:, 2]), dim=1)
         t = (expected[:, 2] - ndc_o[:, 2]) / ndc_d[:, 2]
         torch.testing.assert_close(ndc_o + t[:, None] * ndc_d, expected, atol=1e-9, rtol=0)

@@ -28,7 +28,12 @@ def image(stamp: float, pixels: np.ndarray, encoding: str = "rgb8", frame: str =
     height, width = pixels.shape[:2]
     data = pixels[..., ::-1] if encoding == "bgr8" else pixels
     return message_class("sensor_msgs/msg/Image")(
-        header=convert.header(stamp, frame), height=height, width=width, encoding=encoding, is_bigendian=0, step=3 * width,
+        header=convert.header(stamp, frame),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=3 * width,
         data=np.ascontiguousarray(data).reshape(-1),
     )
 
@@ -39,8 +44,17 @@ def camera_info(stamp: float, intrinsics: PinholeIntrinsics, frame: str = "camer
     p = np.array([intrinsics.fx, 0.0, intrinsics.cx, 0.0, 0.0, intrinsics.fy, intrinsics.cy, 0.0, 0.0, 0.0, 1.0, 0.0])
     roi = message_class("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return message_class("sensor_msgs/msg/CameraInfo")(
-        header=convert.header(stamp, frame), height=intrinsics.height, width=intrinsics.width, distortion_model="plumb_bob",
-        d=np.zeros(5), k=k, r=np.eye(3).reshape(-1), p=p, binning_x=0, binning_y=0, roi=roi,
+        header=convert.header(stamp, frame),
+        height=intrinsics.height,
+        width=intrinsics.width,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=k,
+        r=np.eye(3).reshape(-1),
+        p=p,
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
     )
 
 

@@ -18,7 +18,7 @@ from locnerf.geometry.se3 import pose_inverse
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from locnerf.sim.sensors import VioConfig
 from services.sensor_ingest.__main__ import IngestConfig, sensor_events
-from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_T_body_cam, euroc_events
+from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events, euroc_T_body_cam
 
 QUIET = VioConfig(translation_drift=0.0, yaw_drift_rate=0.0, rotation_noise=0.0, translation_noise=0.0)
 
@@ -69,8 +69,9 @@ def test_events_are_ordered_and_odometry_follows_the_camera(euroc: Path, generat
     first = sequence.T_world_body[0] @ sequence.camera.T_body_cam
     torch.testing.assert_close(opengl_to_opencv(truth[0].T_world_cam), first, atol=1e-5, rtol=0)
     # Noise-free odometry reproduces the true relative motion.
-    torch.testing.assert_close(pose_inverse(odometry[0].T_odom_body) @ odometry[-1].T_odom_body,
-                               pose_inverse(truth[0].T_world_cam) @ truth[-1].T_world_cam, atol=1e-9, rtol=0)
+    torch.testing.assert_close(
+        pose_inverse(odometry[0].T_odom_body) @ odometry[-1].T_odom_body, pose_inverse(truth[0].T_world_cam) @ truth[-1].T_world_cam, atol=1e-9, rtol=0
+    )
 
 
 def test_ingest_config_selects_euroc_and_refuses_broken_folders(euroc: Path, tmp_path: Path) -> None:

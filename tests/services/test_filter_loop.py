@@ -49,9 +49,7 @@ def world() -> ProceduralWorld:
 class Harness:
     """A filter loop, a fake clock and workers answering on demand."""
 
-    def __init__(
-        self, world: ProceduralWorld, config: FilterLoopConfig = FilterLoopConfig(), seed: int = 0, localizer_config=None, keyframes=None
-    ) -> None:
+    def __init__(self, world: ProceduralWorld, config: FilterLoopConfig = FilterLoopConfig(), seed: int = 0, localizer_config=None, keyframes=None) -> None:
         bounds = world.camera_bounds()
         self.region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
         self.now = 0.0
@@ -201,8 +199,14 @@ def test_bad_messages_are_counted_by_kind_and_dropped(world, generator):
     loop.handle_result(b"")
     counters = loop.counters()
     expected = {
-        "bad_undecodable": 2, "bad_invalid": 1, "bad_schema_version": 1, "bad_stamp_backwards": 1, "bad_invalid_odometry": 1,
-        "bad_image_too_old": 1, "bad_image_size": 1, "bad_command_invalid": 1,
+        "bad_undecodable": 2,
+        "bad_invalid": 1,
+        "bad_schema_version": 1,
+        "bad_stamp_backwards": 1,
+        "bad_invalid_odometry": 1,
+        "bad_image_too_old": 1,
+        "bad_image_size": 1,
+        "bad_command_invalid": 1,
     }
     assert {k: counters[k] for k in expected} == expected and counters["bad_messages"] == sum(expected.values())
     harness.collect(loop.handle_odometry(_odometry(12.0, eye)))
@@ -240,7 +244,7 @@ def test_results_with_other_ids_unknown_or_late_requests_are_told_apart(world, g
     harness.collect(harness.loop.handle_odometry(_odometry(0.0, eye)))
     harness.collect(harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator))))
     harness.tick()
-    (_worker, request), = harness.requests
+    ((_worker, request),) = harness.requests
     result = NerfWorker(world, "w1").handle(request)
     harness.loop.handle_result(encode(result.model_copy(update={"ids": [i + 1 for i in result.ids]})))
     harness.loop.handle_result(encode(result.model_copy(update={"request_id": "never-issued"})))
@@ -356,12 +360,16 @@ def test_odometry_history_interpolates_and_carries(generator):
 
 def test_map_frame_conversions_invert_each_other(generator):
     normalization = MapNormalization(
-        T_map_dataset=make_pose(se3_exp(torch.tensor([0.1, -0.2, 0.3, 0, 0, 0], dtype=torch.float64))[:3, :3], torch.tensor([0.5, 0.0, -1.0], dtype=torch.float64)).tolist(),
+        T_map_dataset=make_pose(
+            se3_exp(torch.tensor([0.1, -0.2, 0.3, 0, 0, 0], dtype=torch.float64))[:3, :3], torch.tensor([0.5, 0.0, -1.0], dtype=torch.float64)
+        ).tolist(),
         scale=0.25,
     )
     pose = se3_exp(torch.randn(6, dtype=torch.float64, generator=generator))
     torch.testing.assert_close(normalization.map_to_metric(normalization.metric_to_map(pose)), pose)
-    relative = pose_inverse(normalization.metric_to_map(pose)) @ normalization.metric_to_map(pose @ se3_exp(torch.tensor([0, 0, 0, 1.0, 0, 0], dtype=torch.float64)))
+    relative = pose_inverse(normalization.metric_to_map(pose)) @ normalization.metric_to_map(
+        pose @ se3_exp(torch.tensor([0, 0, 0, 1.0, 0, 0], dtype=torch.float64))
+    )
     assert float(relative[:3, 3].norm()) == pytest.approx(0.25)
     covariance = torch.eye(6, dtype=torch.float64)
     assert normalization.covariance_to_map(covariance).diagonal().tolist() == pytest.approx([1, 1, 1, 0.0625, 0.0625, 0.0625])
@@ -383,7 +391,9 @@ def test_pose_is_the_carried_estimate_and_the_particles_follow_after_it(world):
     start = world.sample_camera_pose(torch.Generator().manual_seed(3))
     covariance = torch.diag(torch.tensor([0.02, 0.02, 0.02, 0.05, 0.05, 0.05], dtype=torch.float64) ** 2)
     loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=start.tolist(), covariance=covariance.tolist())))
-    increment = make_pose(se3_exp(torch.tensor([0.0, 0.05, 0.0, 0.0, 0.0, 0.1], dtype=torch.float64))[:3, :3], torch.tensor([0.02, 0.0, 0.1], dtype=torch.float64))
+    increment = make_pose(
+        se3_exp(torch.tensor([0.0, 0.05, 0.0, 0.0, 0.0, 0.1], dtype=torch.float64))[:3, :3], torch.tensor([0.02, 0.0, 0.1], dtype=torch.float64)
+    )
     anchor = loop.localizer.estimate()
     before = loop.localizer.particles.poses.clone()
     odometry = torch.eye(4, dtype=torch.float64)
@@ -497,6 +507,6 @@ def test_the_first_update_after_a_global_start_is_seeded_at_the_keyframes_and_si
     harness.loop.predict_pending()
     harness.collect(harness.loop.handle_image(_image(world, 0.0, camera)))
     harness.tick()
-    (_, request), = harness.requests
+    ((_, request),) = harness.requests
     assert len(request.pixels) == 20
     assert near_camera(torch.tensor(request.poses, dtype=torch.float64).reshape(-1, 4, 4)) > 0

@@ -29,9 +29,7 @@ def _started() -> tuple[LoopStateMachine, Localizer]:
 def _completed(localizer: Localizer) -> CompletedUpdate:
     """An update on the current particles that prefers those with a larger x."""
     snapshot = localizer.snapshot()
-    return CompletedUpdate(
-        snapshot.epoch, snapshot.generation, snapshot.ids, snapshot.poses[:, 0, 3].double() * 100, 0.1, None, None
-    )
+    return CompletedUpdate(snapshot.epoch, snapshot.generation, snapshot.ids, snapshot.poses[:, 0, 3].double() * 100, 0.1, None, None)
 
 
 def test_waiting_until_particles_are_drawn_and_no_estimate_to_carry():

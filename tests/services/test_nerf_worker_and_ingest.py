@@ -41,8 +41,15 @@ def _request(world: ProceduralWorld, generator: torch.Generator, count: int = 6)
     pixels = sample_pixels(intrinsics.height, intrinsics.width, 16, generator)
     colours = observed_colours(image, pixels)
     request = UpdateRequest(
-        request_id="r", shard=0, epoch=1, generation=0, ids=list(range(10, 10 + count)), poses=poses.reshape(count, 16).tolist(),
-        pixels=pixels.tolist(), observed_rgb=colours.tolist(), intrinsics=intrinsics,
+        request_id="r",
+        shard=0,
+        epoch=1,
+        generation=0,
+        ids=list(range(10, 10 + count)),
+        poses=poses.reshape(count, 16).tolist(),
+        pixels=pixels.tolist(),
+        observed_rgb=colours.tolist(),
+        intrinsics=intrinsics,
     )
     return request, poses, pixels, colours
 
@@ -132,8 +139,14 @@ def _sequence(count: int) -> PosedImages:
     steps[:, 4] = torch.arange(count, dtype=torch.float64)  # 1 map unit along y per frame
     normalization = MapNormalization(scale=2.0)  # 2 map units per metre
     return PosedImages(
-        images=torch.rand(count, 6, 8, 3), T_world_cam=se3_exp(steps), intrinsics=intrinsics, near=0.1, far=5.0,
-        normalization=normalization, names=[str(i) for i in range(count)], scene_bounds=torch.tensor([[-1.0] * 3, [1.0] * 3]),
+        images=torch.rand(count, 6, 8, 3),
+        T_world_cam=se3_exp(steps),
+        intrinsics=intrinsics,
+        near=0.1,
+        far=5.0,
+        normalization=normalization,
+        names=[str(i) for i in range(count)],
+        scene_bounds=torch.tensor([[-1.0] * 3, [1.0] * 3]),
     )
 
 

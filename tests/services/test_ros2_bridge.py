@@ -54,9 +54,16 @@ def setup():
     bus = MemoryBus()
     received: dict[str, list] = {"pose": [], "cloud": [], "tf": [], "locnerf": []}
     bus.subscribe(keys.key(ROBOT, keys.POSE), lambda _k, payload: received["locnerf"].append(payload))
-    types = {"pose": ("amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped"), "cloud": ("particle_cloud", "geometry_msgs/msg/PoseArray"), "tf": ("tf", "tf2_msgs/msg/TFMessage")}
+    types = {
+        "pose": ("amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped"),
+        "cloud": ("particle_cloud", "geometry_msgs/msg/PoseArray"),
+        "tf": ("tf", "tf2_msgs/msg/TFMessage"),
+    }
     for name, (topic, ros_type) in types.items():
-        bus.subscribe_attached(data_key(0, "/" + topic, ros_type), lambda _k, payload, att, name=name, ros_type=ros_type: received[name].append((deserialize(payload, ros_type), Attachment.decode(att))))
+        bus.subscribe_attached(
+            data_key(0, "/" + topic, ros_type),
+            lambda _k, payload, att, name=name, ros_type=ros_type: received[name].append((deserialize(payload, ros_type), Attachment.decode(att))),
+        )
     driver = FilterDriver(loop, bus, clock=lambda: 0.0, ros2=FilterRos2Bridge(loop, bus, Ros2Config(enabled=True)))
     driver.subscribe()
     vio = Ros2Node(bus, 0, "vio")

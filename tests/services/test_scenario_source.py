@@ -42,9 +42,7 @@ def test_world_scenario_events_match_the_offline_scenario():
 def test_lego_orbit_is_served_with_synthesised_odometry(shared_data):
     """A NeRF-synthetic sequence through the generic reader. Its frames lie 0.22 units apart: at a
     nominal 1 unit/s they are 3 odometry periods (0.2 s) apart, so 5 Hz images are every frame."""
-    scenario = ScenarioSourceConfig(
-        sequence=str(shared_data / "nerf_synthetic" / "lego_test_orbit"), downscale=8, duration=2.0, image_rate=5.0, speed=1.0
-    )
+    scenario = ScenarioSourceConfig(sequence=str(shared_data / "nerf_synthetic" / "lego_test_orbit"), downscale=8, duration=2.0, image_rate=5.0, speed=1.0)
     events = list(sensor_events(IngestConfig(source="scenario", scenario=scenario)))
     images = [e for e in events if isinstance(e, ImageEvent)]
     odometry = [e for e in events if isinstance(e, OdometryEvent)]

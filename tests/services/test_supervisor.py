@@ -39,9 +39,7 @@ def wait_for_line(path: Path, line: str) -> None:
 def test_a_config_file_holds_the_changed_fields_and_reads_back_equal(tmp_path):
     config = IngestConfig(robot_id="r", source="world", world={"image_rate": 0.0, "duration": 86400.0}, prefetch_events=7)
     path = write_config(tmp_path / "deep" / "ingest.toml", config)
-    assert tomllib.loads(path.read_text()) == {
-        "robot_id": "r", "prefetch_events": 7, "world": {"image_rate": 0.0, "duration": 86400.0}
-    }
+    assert tomllib.loads(path.read_text()) == {"robot_id": "r", "prefetch_events": 7, "world": {"image_rate": 0.0, "duration": 86400.0}}
     assert load_service_config(IngestConfig, path, {}) == config
     worker = WorkerConfig(worker_id="w", transport=TransportConfig(connect=("tcp/127.0.0.1:1",)))
     assert load_service_config(WorkerConfig, write_config(tmp_path / "worker.toml", worker), {}) == worker

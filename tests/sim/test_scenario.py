@@ -68,8 +68,14 @@ def tiny_sequence(count: int = 6) -> PosedImages:
     intrinsics = PinholeIntrinsics(fx=8.0, fy=8.0, cx=4.0, cy=3.0, width=8, height=6)
     images = torch.arange(count, dtype=torch.float32)[:, None, None, None].expand(count, 6, 8, 3) / count
     return PosedImages(
-        images=images.contiguous(), T_world_cam=make_pose(rotations, positions), intrinsics=intrinsics, near=0.1, far=10.0,
-        normalization=MapNormalization(), names=[f"r_{i}" for i in range(count)], scene_bounds=torch.tensor([[-1.0] * 3, [1.0] * 3]),
+        images=images.contiguous(),
+        T_world_cam=make_pose(rotations, positions),
+        intrinsics=intrinsics,
+        near=0.1,
+        far=10.0,
+        normalization=MapNormalization(),
+        names=[f"r_{i}" for i in range(count)],
+        scene_bounds=torch.tensor([[-1.0] * 3, [1.0] * 3]),
     )
 
 

@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
+from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import pose_inverse, rotation_error_deg, se3_log
 from locnerf.geometry.validation import InvalidPoseError
-from locnerf.field.protocol import MapNormalization
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from locnerf.sim.paths import WorldPath
 from locnerf.sim.scenario import ScenarioConfig, build_scenario

@@ -24,9 +24,7 @@ def test_tiny_lego_map_learns_and_survives_the_map_file(shared_data: Path, tmp_p
     lego = shared_data / "nerf_synthetic" / "lego"
     train = read_nerf_synthetic(lego, split="train", downscale=16).subset(list(range(0, 100, 2)))
     views = read_nerf_synthetic(lego, split="val", downscale=16, skip_missing=True)
-    config = BuildConfig(
-        steps=250, batch_rays=1024, field=GridFieldConfig(voxels=40**3), occupancy_warmup=60, final_occupancy_alpha=1e-3, seed=3
-    )
+    config = BuildConfig(steps=250, batch_rays=1024, field=GridFieldConfig(voxels=40**3), occupancy_warmup=60, final_occupancy_alpha=1e-3, seed=3)
     radiance_map = build_map(train, config)
     assert radiance_map.metadata["steps"] == 250
     scores = evaluate_map(radiance_map.render_rays, views)

@@ -73,8 +73,15 @@ def test_short_rgbd_build_with_exposure_and_total_variation(shared_data: Path) -
     """Ten kitchen frames at 40x30: the build runs with both, and the saved map holds the field only."""
     frames = read_dataset(shared_data / "7scenes_redkitchen", split="train", downscale=16, stride=60)
     config = BuildConfig(
-        steps=30, batch_rays=512, depth_batch_rays=512, field=GridFieldConfig(voxels=24**3), occupancy_warmup=10, seed=2,
-        exposure_learning_rate=1e-3, tv_weight=1e-3, tv_vertices=1000,
+        steps=30,
+        batch_rays=512,
+        depth_batch_rays=512,
+        field=GridFieldConfig(voxels=24**3),
+        occupancy_warmup=10,
+        seed=2,
+        exposure_learning_rate=1e-3,
+        tv_weight=1e-3,
+        tv_vertices=1000,
     )
     radiance_map = build_map(frames, config)
     assert radiance_map.metadata["steps"] == 30
