@@ -2,8 +2,8 @@
 
 Structure and sanity only, not headline figures. Tolerances: poses arrive at the 15 Hz odometry
 rate within ±3 Hz (the machine may be loaded); the ingest's measured real-time factor lies in
-(0.5, 1.5); the filter, started globally over the world, converges within the 12 s of sensor time
-(the demo converges in 5–13 s) and then tracks within 0.15 map units and 5° median (it tracks at
+(0.5, 1.5); the filter, started globally over the world, converges within the 18 s of sensor time
+before the kidnapping (it usually converges after 5–6 s; one suite run of 2026-11-24 did not within 12 s) and then tracks within 0.15 map units and 5° median (it tracks at
 a few centimetres).
 """
 
@@ -44,9 +44,9 @@ def test_live_tracking_in_the_world_reports_every_key_and_tracks(tmp_path):
         "world",
         "--live",
         "--duration",
-        "14",
+        "20",
         "--kidnap-at",
-        "12",
+        "18",
         "--image-rate",
         "5",
         "--device",
@@ -65,8 +65,8 @@ def test_live_tracking_in_the_world_reports_every_key_and_tracks(tmp_path):
     assert 0.5 < report["realtime_factor"] < 1.5
     assert report["update_hz"] > 0 and report["updates"] > 0
     assert report["poses"] >= 0.8 * report["odometry_messages"]
-    assert report["converged_after_s"] is not None, report["start"]
+    assert report["converged_after_s"] is not None, report
     assert math.isfinite(report["translation_median"]) and report["translation_median"] < 0.15
     assert math.isfinite(report["rotation_median_deg"]) and report["rotation_median_deg"] < 5.0
-    assert report["kidnap"]["start_s"] >= 12.0
+    assert report["kidnap"]["start_s"] >= 18.0
     assert (tmp_path / "ingest.toml").is_file() and (tmp_path / "filter.log").is_file()
