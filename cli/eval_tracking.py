@@ -13,6 +13,7 @@ from cli.eval_tracking_live import run_live
 from cli.flags import from_flags
 from locnerf.config import load_config, preset
 from locnerf.data import read_nerf_synthetic
+from locnerf.data.detect import dataset_format, read_dataset
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import (
@@ -39,10 +40,12 @@ from locnerf.sim.world import ProceduralWorld
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("tracking", help="tracking along a path with odometry, optional kidnapping (paper Fig. 5)")
     parser.add_argument("--map", required=True, help="map file, or 'world' for the procedural world")
-    parser.add_argument("--sequence", required=True, help="'world' (figure-eight in the procedural world) or a NeRF-synthetic sequence folder")
-    parser.add_argument("--split", default="test", help="sequence folder: which transforms_<split>.json to replay")
-    parser.add_argument("--background", default="white", help="sequence folder: colour the RGBA frames are composited on (white, black)")
-    parser.add_argument("--downscale", type=int, default=1, help="sequence folder: image size divisor")
+    parser.add_argument("--sequence", required=True, help="'world' (figure-eight in the procedural world) or a data-set folder (NeRF-synthetic, 7-Scenes, ...)")
+    parser.add_argument("--split", default="test", help="sequence folder: which split to replay (transforms_<split>.json, 7-Scenes TestSplit.txt, ...)")
+    parser.add_argument("--background", default="white", help="NeRF-synthetic sequence: colour the RGBA frames are composited on (white, black)")
+    parser.add_argument(
+        "--downscale", type=int, default=None, help="sequence folder: image size divisor (default: the data set's, 1 for NeRF-synthetic, 4 for 7-Scenes)"
+    )
     parser.add_argument("--speed", type=float, default=0.66, help="sequence folder: nominal camera speed, data-set units per second")
     parser.add_argument("--duration", type=float, default=None, help="length of the run, seconds (default: one loop)")
     parser.add_argument("--odom-rate", type=float, default=15.0, help="odometry messages per second")
@@ -89,8 +92,11 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
         return WorldPath(radiance_map, FigureEightTrajectory(), CameraConfig())
     folder = Path(args.sequence)
     if not folder.is_dir():
-        raise FileNotFoundError(f"--sequence {folder}: no such folder (expected 'world' or a NeRF-synthetic sequence folder)")
-    frames = read_nerf_synthetic(folder, split=args.split, background=args.background, downscale=args.downscale)
+        raise FileNotFoundError(f"--sequence {folder}: no such folder (expected 'world' or a data-set folder)")
+    if dataset_format(folder) == "nerf_synthetic":
+        frames = read_nerf_synthetic(folder, split=args.split, background=args.background, downscale=args.downscale or 1)
+    else:
+        frames = read_dataset(folder, split=args.split, downscale=args.downscale)
     return SequencePath(frames, args.speed, args.odom_rate)
 
 

@@ -110,6 +110,24 @@ def test_refuses_a_non_rigid_pose(tmp_path: Path) -> None:
         read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
 
 
+def test_nearly_rigid_poses_come_back_exactly_rigid(tmp_path: Path) -> None:
+    """A rotation orthonormal to 4e-4 only (as printed in the real files, determinant ~0.9989) is
+    accepted and replaced by the closest rotation; the last row becomes exactly 0 0 0 1."""
+    root = _fake_scene(tmp_path / "scene")
+    rounded = _pose(1)
+    rounded[:3, :3] *= 1 - 4e-4
+    rounded[3, 3] = 1 + 1e-5
+    np.savetxt(root / "seq-01" / "frame-000001.pose.txt", rounded)
+    poses = read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA).T_world_cam.double()
+    rotations = poses[:, :3, :3]
+    eye = torch.eye(3, dtype=torch.float64)
+    assert float((rotations.transpose(-1, -2) @ rotations - eye).abs().max()) < 1e-6  # float32 storage
+    assert torch.allclose(torch.linalg.det(rotations), torch.ones(3, dtype=torch.float64), atol=1e-6)
+    assert float((poses[:, 3] - torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)).abs().max()) == 0.0
+    expected = opencv_to_opengl(torch.from_numpy(_pose(1))[None])[0]
+    assert float((rotations[1] - expected[:3, :3]).abs().max()) < 1e-6
+
+
 def test_refuses_depth_that_is_not_an_integer_fraction_of_colour(tmp_path: Path) -> None:
     root = _fake_scene(tmp_path / "scene", {1: range(0, 0), 2: range(3, 6)})
     _write_frame(root / "seq-01", 0, depth_size=(3, 3))
