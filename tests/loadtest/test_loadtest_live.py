@@ -2,40 +2,14 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-
 from cli.loadtest import TABLE_ROWS, format_table
+from tests.loadtest.run_loadtest import run_loadtest
 
 ISSUE_KEYS = ("update_hz", "update_latency_p99_ms", "pose_rate_hz", "pose_jitter_p99_ms", "dropped_frames", "lost_messages")
 
 
 def test_short_loadtest_reports_every_key_and_loses_nothing(tmp_path):
-    command = [
-        sys.executable,
-        "-m",
-        "cli.main",
-        "loadtest",
-        "--particles",
-        "60",
-        "--pixels",
-        "16",
-        "--camera-rate",
-        "5",
-        "--duration",
-        "4",
-        "--warmup",
-        "1",
-        "--device",
-        "cpu",
-        "--out",
-        str(tmp_path),
-        "--json",
-    ]
-    finished = subprocess.run(command, capture_output=True, text=True, timeout=240)
-    assert finished.returncode == 0, finished.stderr[-3000:]
-    report = json.loads(finished.stdout.strip().splitlines()[-1])
+    report = run_loadtest(tmp_path, "--particles", "60", "--pixels", "16", "--camera-rate", "5", "--duration", "4", "--warmup", "1")
     assert set(ISSUE_KEYS) <= set(report)
     assert {key for _, key, _ in TABLE_ROWS} <= set(report)
     assert report["lost_messages"] == 0, report["lost_detail"]

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
+from tests.loadtest.run_loadtest import run_loadtest
 
 
 def test_overload_loses_no_odometry_and_replaces_images(tmp_path):
@@ -12,34 +10,9 @@ def test_overload_loses_no_odometry_and_replaces_images(tmp_path):
     # the filter cannot take every image, so newest-only must replace some. (At 60 x 16 the filter took
     # 50 Hz images one by one on a quiet machine, and replaced none.) The simulator takes images at odometry
     # stamps, so the camera rate is at most the odometry rate (15 Hz); the removed world stream sent 300 Hz.
-    command = [
-        sys.executable,
-        "-m",
-        "cli.main",
-        "loadtest",
-        "--overload",
-        "10",
-        "--particles",
-        "300",
-        "--pixels",
-        "64",
-        "--camera-rate",
-        "15",
-        "--duration",
-        "3",
-        "--warmup",
-        "1",
-        "--memory-period",
-        "1",
-        "--device",
-        "cpu",
-        "--out",
-        str(tmp_path),
-        "--json",
-    ]
-    finished = subprocess.run(command, capture_output=True, text=True, timeout=240)
-    assert finished.returncode == 0, finished.stderr[-3000:]
-    report = json.loads(finished.stdout.strip().splitlines()[-1])
+    report = run_loadtest(
+        tmp_path, "--overload", "10", "--particles", "300", "--pixels", "64", "--camera-rate", "15", "--duration", "3", "--warmup", "1", "--memory-period", "1"
+    )
     assert report["overload"] == 10.0 and report["lost_messages"] == 0, report["lost_detail"]
     # Every odometry message of the window (sent at 150 Hz) has its pose: lost_detail["poses"] == 0 above.
     assert report["odometry_messages"] > 0 and report["lost_detail"]["poses"] == 0
