@@ -12,8 +12,6 @@ import torch
 from cli.eval_tracking_live import run_live
 from cli.flags import from_flags
 from locnerf.config import load_config, preset
-from locnerf.data import read_nerf_synthetic
-from locnerf.data.detect import dataset_format, read_dataset
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import (
@@ -30,7 +28,7 @@ from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import WORLD, open_map
-from locnerf.sim.paths import CameraPath, SequencePath, WorldPath
+from locnerf.sim.paths import CameraPath, WorldPath, read_sequence_path
 from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
@@ -93,11 +91,7 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
     folder = Path(args.sequence)
     if not folder.is_dir():
         raise FileNotFoundError(f"--sequence {folder}: no such folder (expected 'world' or a data-set folder)")
-    if dataset_format(folder) == "nerf_synthetic":
-        frames = read_nerf_synthetic(folder, split=args.split, background=args.background, downscale=args.downscale or 1)
-    else:
-        frames = read_dataset(folder, split=args.split, downscale=args.downscale)
-    return SequencePath(frames, args.speed, args.odom_rate)
+    return read_sequence_path(folder, args.split, args.downscale, args.speed, args.odom_rate, args.background)
 
 
 def convergence_criterion(args: argparse.Namespace) -> ConvergenceConfig:

@@ -12,12 +12,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from pathlib import Path
 from typing import Protocol
 
 import torch
 
-from locnerf.data import PosedImages
+from locnerf.data import PosedImages, read_nerf_synthetic
+from locnerf.data.detect import dataset_format, read_dataset
 from locnerf.errors import DatasetError
 from locnerf.geometry import pose_inverse, se3_exp, se3_log
 from locnerf.geometry.validation import validate_poses
@@ -159,3 +162,18 @@ class SequencePath:
         if abs(phase - index) > 1e-6:
             raise ValueError(f"image time {time} s is between frames (period {self.frame_period} s): expected a frame stamp")
         return self.frames.images[index % len(self.frames)]
+
+
+def read_sequence_path(folder: str | Path, split: str, downscale: int | None, speed: float, odom_rate: float, background: str = "white") -> SequencePath:
+    """A data-set folder's ``split`` (any format of :func:`locnerf.data.read_dataset`) as a
+    :class:`SequencePath`, poses in the data set's metric frame.
+
+    ``downscale`` None is the reader's default; ``background`` is the colour NeRF-synthetic RGBA
+    frames are composited on (other formats have none).
+    """
+    if dataset_format(folder) == "nerf_synthetic":
+        frames = read_nerf_synthetic(folder, split=split, background=background, downscale=downscale or 1)
+    else:
+        frames = read_dataset(folder, split=split, downscale=downscale)
+    metric = dataclasses.replace(frames, T_world_cam=frames.normalization.map_to_metric(frames.T_world_cam.double()))
+    return SequencePath(metric, speed, odom_rate)

@@ -14,14 +14,12 @@ speed. The camera is the body (``T_body_cam = I``).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Iterator
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.data.detect import read_dataset
 from locnerf.sim.events import SensorEvent
-from locnerf.sim.paths import CameraPath, SequencePath, WorldPath
+from locnerf.sim.paths import CameraPath, WorldPath, read_sequence_path
 from locnerf.sim.scenario import ScenarioConfig
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.stream import simulated_events
@@ -50,9 +48,7 @@ def camera_path(config: ScenarioSourceConfig) -> CameraPath:
     """The figure-eight of the default procedural world, or the data-set folder's frames in metres."""
     if config.sequence == WORLD:
         return WorldPath(ProceduralWorld.default(), FigureEightTrajectory(), CameraConfig())
-    frames = read_dataset(config.sequence, split=config.split, downscale=config.downscale)
-    metric = dataclasses.replace(frames, T_world_cam=frames.normalization.map_to_metric(frames.T_world_cam.double()))
-    return SequencePath(metric, config.speed, config.vio.rate)
+    return read_sequence_path(config.sequence, config.split, config.downscale, config.speed, config.vio.rate)
 
 
 def scenario_events(config: ScenarioSourceConfig, seed: int) -> Iterator[SensorEvent]:
