@@ -45,6 +45,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--downscale", type=int, default=None, help="sequence folder: image size divisor (default: the data set's, 1 for NeRF-synthetic, 4 for 7-Scenes)"
     )
     parser.add_argument("--speed", type=float, default=0.66, help="sequence folder: nominal camera speed, data-set units per second")
+    parser.add_argument(
+        "--frame-rate",
+        type=float,
+        default=None,
+        help="sequence folder: replay a recorded video at its capture rate, frames per second (7-Scenes: 30), instead of --speed;"
+        " a whole multiple of --odom-rate",
+    )
     parser.add_argument("--duration", type=float, default=None, help="length of the run, seconds (default: one loop)")
     parser.add_argument("--odom-rate", type=float, default=15.0, help="odometry messages per second")
     parser.add_argument("--image-rate", type=float, default=None, help="images per second (default: 3 offline, 5 with --live)")
@@ -91,7 +98,7 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
     folder = Path(args.sequence)
     if not folder.is_dir():
         raise FileNotFoundError(f"--sequence {folder}: no such folder (expected 'world' or a data-set folder)")
-    return read_sequence_path(folder, args.split, args.downscale, args.speed, args.odom_rate, args.background)
+    return read_sequence_path(folder, args.split, args.downscale, args.speed, args.odom_rate, args.background, args.frame_rate)
 
 
 def convergence_criterion(args: argparse.Namespace) -> ConvergenceConfig:

@@ -48,6 +48,7 @@ def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str
         "split": args.split,
         "downscale": args.downscale,
         "speed": args.speed,
+        "frame_rate": args.frame_rate,
         "duration": args.duration,
         "image_rate": image_rate,
         "kidnap_at": args.kidnap_at,

@@ -43,7 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument("--split", default="train", help="split to build from (the held-out figures use the test split)")
     build.add_argument("--stride", type=int, default=1, help="keep every N-th frame of the split")
     build.add_argument("--no-depth", action="store_true", help="build from colour only even when the data set has depth images")
-    build.add_argument("--depth-weight", type=float, default=BuildConfig().depth_weight, help="weight of the expected-depth loss (RGB-D data)")
+    build.add_argument(
+        "--depth-weight", type=float, help=f"weight of the expected-depth loss (RGB-D data; default {RoomConfig().depth_weight}, as BuildConfig.room)"
+    )
     build.add_argument("--device", default="auto", help="auto | cpu | cuda[:N]")
     build.add_argument("--seed", type=int, default=0)
     build.set_defaults(func=run_build)
@@ -109,7 +111,7 @@ def run_build(args: argparse.Namespace) -> int:
             "seed": args.seed,
             "field": field,
             "use_depth": not args.no_depth,
-            "depth_weight": args.depth_weight,
+            **({} if args.depth_weight is None else {"depth_weight": args.depth_weight}),
         }
         config = from_flags(BuildConfig, values, {"use_depth": "--no-depth"})
         radiance_map = build_map(train, config, device=device, progress=True)

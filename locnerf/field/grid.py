@@ -267,13 +267,18 @@ class GridField(torch.nn.Module):
         ray_index, sample_index, points, _, count = self._training_samples(origins, directions, generator)
         return self._composite(ray_index, sample_index, points, (origins.shape[0], count), view_directions)
 
-    def render_training_depth(self, origins: torch.Tensor, directions: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
-        """Differentiable expected ray parameter of rays (R, 3) x2 -> (R,): ``Σ w_k t_k + (1 - Σ w_k) · t_box``.
+    def render_training_depth(
+        self, origins: torch.Tensor, directions: torch.Tensor, generator: torch.Generator | None, free_space_until: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Differentiable expected ray parameter of rays (R, 3) x2 -> (R,): ``Σ w_k t_k + (1 - Σ w_k) · t_box``,
+        and, when ``free_space_until`` (R,) is given, each ray's weight in front of it, ``Σ_{t_k < free_space_until} w_k`` (R,).
 
         The transmittance left after the last sample ends the ray where it leaves the grid's box
         (``t_box``), so a transparent ray reads "far" rather than 0: a depth loss then pulls
         density towards the observed surface instead of rewarding empty rays. With directions of
         camera z = -1 (:mod:`locnerf.render.rays`) the parameter is the depth along the optical axis.
+        The weight in front of a depth reading is what a free-space loss pushes to 0: an expected
+        depth alone is also matched by a floater in front of the surface balanced by density behind it.
         """
         ray_index, sample_index, points, t, count = self._training_samples(origins, directions, generator)
         optical = self.optical_depth(self.sample_grid(points)[:, 0])
@@ -282,7 +287,11 @@ class GridField(torch.nn.Module):
         sample_weights = weights[ray_index, sample_index]
         expected = torch.zeros(origins.shape[0], device=points.device, dtype=optical.dtype).index_add(0, ray_index, sample_weights * t)
         _, t_box = ray_box_intersection(origins, directions, self.box)
-        return expected + (1.0 - weights.sum(dim=-1)) * t_box
+        in_front = None
+        if free_space_until is not None:
+            ahead = t < free_space_until[ray_index]
+            in_front = torch.zeros(origins.shape[0], device=points.device, dtype=optical.dtype).index_add(0, ray_index[ahead], sample_weights[ahead])
+        return expected + (1.0 - weights.sum(dim=-1)) * t_box, in_front
 
     @torch.no_grad()
     def seed_density(self, points: torch.Tensor, alpha: float) -> float:

@@ -4,10 +4,11 @@
   images rendered at the true camera pose with the simulated camera's noise and gain; the camera
   sits on the body at ``CameraConfig.T_body_cam``.
 - :class:`SequencePath`: a posed image sequence (e.g. the lego test orbit). Frame ``j`` gets the
-  stamp ``j · Δ``, where ``Δ`` is the mean distance between consecutive frames divided by the
-  nominal speed, rounded to a whole number of odometry periods (so every frame lies on the grid);
-  between frames the pose follows the SE(3) geodesic. The sequence is treated as a closed loop,
-  and the camera is the body.
+  stamp ``j · Δ``, where ``Δ`` is either the mean distance between consecutive frames divided by
+  the nominal speed, rounded to a whole number of odometry periods (so every frame lies on the
+  grid), or the period of the capture's own frame rate (a recorded video replayed at its real
+  speed; then the odometry period must be a whole number of frames); between frames the pose
+  follows the SE(3) geodesic. The sequence is treated as a closed loop, and the camera is the body.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import torch
 
 from locnerf.data import PosedImages, read_nerf_synthetic
 from locnerf.data.detect import dataset_format, read_dataset
-from locnerf.errors import DatasetError
+from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.geometry import pose_inverse, se3_exp, se3_log
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
@@ -112,20 +113,28 @@ class SequencePath:
 
     Args:
         frames: the sequence's images and poses (map frame of its data set, metric).
-        speed: nominal camera speed, data-set units per second.
+        speed: nominal camera speed, data-set units per second (ignored when ``frame_rate`` is given).
         odom_rate: odometry rate, Hz; frame stamps are whole multiples of its period.
+        frame_rate: the capture's frame rate, Hz, to replay the frames at their real speed (e.g. 30
+            for 7-Scenes' Kinect); it must be a whole multiple of ``odom_rate``, so that every odometry
+            stamp, and so every image, falls on a frame. None: frames are spaced by ``speed``.
     """
 
-    def __init__(self, frames: PosedImages, speed: float, odom_rate: float) -> None:
+    def __init__(self, frames: PosedImages, speed: float, odom_rate: float, frame_rate: float | None = None) -> None:
         if len(frames) < 2:
             raise DatasetError(f"{frames.source}: {len(frames)} frame(s), expected at least 2 to follow a path")
         if speed <= 0:
             raise ValueError(f"speed {speed}: expected a positive nominal speed (units per second)")
         self.frames = frames
         poses = frames.T_world_cam.double()
-        steps = (poses[1:, :3, 3] - poses[:-1, :3, 3]).norm(dim=-1)
-        self.ticks_per_frame = max(1, round(float(steps.mean()) / speed * odom_rate))
-        self.frame_period = self.ticks_per_frame / odom_rate
+        if frame_rate is None:
+            steps = (poses[1:, :3, 3] - poses[:-1, :3, 3]).norm(dim=-1)
+            self.frame_period = max(1, round(float(steps.mean()) / speed * odom_rate)) / odom_rate
+        else:
+            frames_per_tick = frame_rate / odom_rate
+            if frame_rate <= 0 or round(frames_per_tick) < 1 or abs(frames_per_tick - round(frames_per_tick)) > 1e-9:
+                raise LocnerfInputError(f"frame rate {frame_rate} Hz: expected a whole multiple of the odometry rate {odom_rate} Hz")
+            self.frame_period = 1.0 / frame_rate
         closed = torch.cat([poses, poses[:1]])
         self._tangents = se3_log(pose_inverse(closed[:-1]) @ closed[1:])  # (K, 6) frame j -> j + 1
 
@@ -164,16 +173,19 @@ class SequencePath:
         return self.frames.images[index % len(self.frames)]
 
 
-def read_sequence_path(folder: str | Path, split: str, downscale: int | None, speed: float, odom_rate: float, background: str = "white") -> SequencePath:
+def read_sequence_path(
+    folder: str | Path, split: str, downscale: int | None, speed: float, odom_rate: float, background: str = "white", frame_rate: float | None = None
+) -> SequencePath:
     """A data-set folder's ``split`` (any format of :func:`locnerf.data.read_dataset`) as a
     :class:`SequencePath`, poses in the data set's metric frame.
 
     ``downscale`` None is the reader's default; ``background`` is the colour NeRF-synthetic RGBA
-    frames are composited on (other formats have none).
+    frames are composited on (other formats have none); ``frame_rate`` replays the frames at the
+    capture's own rate instead of ``speed``.
     """
     if dataset_format(folder) == "nerf_synthetic":
         frames = read_nerf_synthetic(folder, split=split, background=background, downscale=downscale or 1)
     else:
         frames = read_dataset(folder, split=split, downscale=downscale)
     metric = dataclasses.replace(frames, T_world_cam=frames.normalization.map_to_metric(frames.T_world_cam.double()))
-    return SequencePath(metric, speed, odom_rate)
+    return SequencePath(metric, speed, odom_rate, frame_rate)

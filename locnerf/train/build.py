@@ -66,15 +66,20 @@ class RoomConfig(BaseModel):
     """Settings that replace the general ones when the data have depth images (RGB-D rooms seen from inside, 7-Scenes).
 
     Only where the caller left the general setting at its default (pydantic's ``model_fields_set``):
-    an explicit ``voxels`` or ``tv_weight`` wins. Chosen with 200-step builds of the redkitchen
-    training split scored on every 20th test frame (docs/MAPS.md): test views from another
-    trajectory than the training frames' favour a coarser, smoother grid, which also steps faster.
+    an explicit ``voxels``, ``features``, ``tv_weight``, ``depth_weight`` or ``free_space_weight`` wins.
+    Chosen with fixed-step builds of the redkitchen training split scored on test frames
+    (docs/MAPS.md): test views from another trajectory than the training frames' favour a coarser,
+    smoother grid (which also steps faster), no view-dependent colour (it extrapolates badly to
+    directions no training frame had) and surfaces kept free of floaters in front of the depth readings.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     voxels: int = Field(64**3, gt=0, description="Grid vertices in all (redkitchen: 87×49×65, 5.6 cm voxels, against 2.8 cm at the general 128³).")
+    features: int = Field(0, ge=0, description="View-feature channels per vertex (the field's features): 0, diffuse colour only.")
     tv_weight: float = Field(0.01, ge=0, description="Weight of the grid's total variation (BuildConfig.tv_weight).")
+    depth_weight: float = Field(0.3, ge=0, description="Weight of the expected-depth loss (BuildConfig.depth_weight).")
+    free_space_weight: float = Field(0.1, ge=0, description="Weight of the free-space loss (BuildConfig.free_space_weight).")
 
 
 class BuildConfig(BaseModel):
@@ -102,6 +107,12 @@ class BuildConfig(BaseModel):
     use_depth: bool = Field(True, description="Use the images' depth (when they have any); False builds from colour only.")
     depth_weight: float = Field(0.1, ge=0, description="Weight of the expected-depth loss (squared error, map units²) beside the colour MSE.")
     depth_batch_rays: int = Field(2048, gt=0, description="Depth-camera rays per optimisation step for the depth loss.")
+    free_space_weight: float = Field(
+        0.0, ge=0, description="Weight of the free-space loss: the mean rendering weight of depth rays in front of their reading (minus the margin); 0: off."
+    )
+    free_space_margin: float = Field(
+        2.0, ge=0, description="Voxels in front of each depth reading where the free-space loss leaves the weight alone (the surface's own spread)."
+    )
     depth_seed_alpha: float | None = Field(
         0.1, gt=0, lt=1, description="One-step opacity given at the start to the vertices nearest to back-projected depth points (None: no seeding)."
     )
@@ -142,9 +153,9 @@ def config_for(images: PosedImages, config: BuildConfig) -> BuildConfig:
     """
     if images.depths is not None and not images.normalization.ndc:
         room = config.room
-        field = config.field if "voxels" in config.field.model_fields_set else config.field.model_copy(update={"voxels": room.voxels})
-        tv_weight = config.tv_weight if "tv_weight" in config.model_fields_set else room.tv_weight
-        return config.model_copy(update={"field": field, "tv_weight": tv_weight})
+        field_defaults = {name: getattr(room, name) for name in ("voxels", "features") if name not in config.field.model_fields_set}
+        defaults = {name: getattr(room, name) for name in ("tv_weight", "depth_weight", "free_space_weight") if name not in config.model_fields_set}
+        return config.model_copy(update={"field": config.field.model_copy(update=field_defaults), **defaults})
     if not images.normalization.ndc:
         return config
     ndc = config.forward_facing
@@ -276,8 +287,13 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
         if depth_rays is not None and config.depth_weight > 0:
             d_origins, d_directions, d_observed = depth_rays
             d_batch = torch.randint(0, len(d_observed), (config.depth_batch_rays,), generator=generator, device=device)
-            d_loss = depth_loss(field.render_training_depth(d_origins[d_batch], d_directions[d_batch], generator), d_observed[d_batch])
+            observed = d_observed[d_batch]
+            free_space_until = observed - config.free_space_margin * field.voxel_size if config.free_space_weight > 0 else None
+            expected, in_front = field.render_training_depth(d_origins[d_batch], d_directions[d_batch], generator, free_space_until)
+            d_loss = depth_loss(expected, observed)
             loss = loss + config.depth_weight * d_loss
+            if in_front is not None:
+                loss = loss + config.free_space_weight * in_front.mean()
             depth_history.append(float(d_loss.detach()))
         if config.tv_weight > 0:
             loss = loss + config.tv_weight * grid_total_variation(field, config.tv_vertices, generator)

@@ -38,6 +38,9 @@ class ScenarioSourceConfig(BaseModel):
     split: str = Field("test", description="Data-set folder: the split to replay.")
     downscale: int | None = Field(None, ge=1, description="Data-set folder: image size divisor (None: the reader's default).")
     speed: float = Field(0.66, gt=0, description="Data-set folder: nominal camera speed, metres per second.")
+    frame_rate: float | None = Field(
+        None, gt=0, description="Data-set folder: the capture's frame rate, Hz, to replay at its real speed (instead of speed); a multiple of vio.rate."
+    )
     duration: float | None = Field(None, gt=0, description="Seconds of sensor time; None: one loop of the path.")
     image_rate: float = Field(5.0, gt=0, description="Images per second (rounded onto the odometry grid or the frames).")
     vio: VioConfig = Field(default_factory=VioConfig, description="Odometry rate, drift and noise (the offline path's model).")
@@ -48,7 +51,7 @@ def camera_path(config: ScenarioSourceConfig) -> CameraPath:
     """The figure-eight of the default procedural world, or the data-set folder's frames in metres."""
     if config.sequence == WORLD:
         return WorldPath(ProceduralWorld.default(), FigureEightTrajectory(), CameraConfig())
-    return read_sequence_path(config.sequence, config.split, config.downscale, config.speed, config.vio.rate)
+    return read_sequence_path(config.sequence, config.split, config.downscale, config.speed, config.vio.rate, frame_rate=config.frame_rate)
 
 
 def scenario_events(config: ScenarioSourceConfig, seed: int) -> Iterator[SensorEvent]:

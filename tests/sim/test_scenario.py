@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from locnerf.data import PosedImages, read_nerf_synthetic
+from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import make_pose, pose_inverse, rotation_error_deg, so3_exp, translation_error
 from locnerf.render.camera import PinholeIntrinsics
@@ -83,7 +84,7 @@ def test_sequence_path_passes_through_its_frames_along_geodesics() -> None:
     frames = tiny_sequence()
     step = float((frames.T_world_cam[1, :3, 3] - frames.T_world_cam[0, :3, 3]).norm())
     path = SequencePath(frames, speed=step * 3.0, odom_rate=15.0)
-    assert path.ticks_per_frame == 5
+    assert path.frame_period * 15.0 == pytest.approx(5.0)
     stamps = torch.arange(len(frames) + 1, dtype=torch.float64) * path.frame_period
     torch.testing.assert_close(path.poses_at(stamps), torch.cat([frames.T_world_cam, frames.T_world_cam[:1]]))
     middle = path.poses_at(torch.tensor([0.5 * path.frame_period], dtype=torch.float64))[0]
@@ -98,6 +99,25 @@ def test_sequence_path_passes_through_its_frames_along_geodesics() -> None:
         torch.testing.assert_close(scenario.truth[tick], frames.T_world_cam[frame])
 
 
+def test_sequence_replays_at_its_capture_rate() -> None:
+    """At 30 frames/s under 15 Hz odometry every tick is every second frame, and 5 Hz images are every sixth frame."""
+    frames = tiny_sequence(count=12)
+    path = SequencePath(frames, speed=1.0, odom_rate=15.0, frame_rate=30.0)
+    assert path.frame_period == pytest.approx(1 / 30)
+    scenario = build_scenario(path, ScenarioConfig(duration=0.6, image_rate=5.0, vio=PERFECT_VIO), MapNormalization())
+    assert scenario.image_ticks == [0, 3, 6, 9]
+    generator = torch.Generator().manual_seed(0)
+    for tick in scenario.image_ticks:
+        torch.testing.assert_close(scenario.image(tick, generator), frames.images[(2 * tick) % len(frames)])
+    torch.testing.assert_close(scenario.truth, frames.T_world_cam[[(2 * k) % len(frames) for k in range(10)]])
+
+
+@pytest.mark.parametrize("frame_rate", [20.0, 7.5, 0.0])
+def test_capture_rate_must_be_a_multiple_of_the_odometry_rate(frame_rate: float) -> None:
+    with pytest.raises(LocnerfInputError, match=f"frame rate {frame_rate} Hz: expected a whole multiple of the odometry rate 15.0 Hz"):
+        SequencePath(tiny_sequence(), speed=1.0, odom_rate=15.0, frame_rate=frame_rate)
+
+
 def test_sequence_needs_two_frames() -> None:
     with pytest.raises(ValueError, match="1 frame"):
         SequencePath(tiny_sequence().subset([0]), speed=1.0, odom_rate=15.0)
@@ -108,7 +128,7 @@ def test_lego_orbit_replays_as_a_closed_loop() -> None:
     frames = read_nerf_synthetic(LEGO_ORBIT, split="test", background="white", downscale=8)
     assert len(frames) == 200 and (frames.intrinsics.width, frames.intrinsics.height) == (50, 50)
     path = SequencePath(frames, speed=0.66, odom_rate=15.0)
-    assert path.ticks_per_frame == 5  # mean frame spacing 0.22 units at 0.66 units/s: 1/3 s
+    assert path.frame_period * 15.0 == pytest.approx(5.0)  # mean frame spacing 0.22 units at 0.66 units/s: 1/3 s
     scenario = build_scenario(path, ScenarioConfig(duration=10.0, image_rate=3.0, vio=PERFECT_VIO), MapNormalization())
     assert scenario.image_ticks == list(range(0, 151, 5))
     torch.testing.assert_close(scenario.truth[scenario.image_ticks], frames.T_world_cam[:31])

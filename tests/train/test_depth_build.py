@@ -25,7 +25,7 @@ def _rays_along_minus_z(count: int) -> tuple[torch.Tensor, torch.Tensor]:
 def test_expected_depth_of_a_transparent_grid_is_the_box_exit() -> None:
     field = GridField(BOX, GridFieldConfig(voxels=17**3), background=None)
     origins, directions = _rays_along_minus_z(5)
-    depth = field.render_training_depth(origins, directions, generator=None)
+    depth = field.render_training_depth(origins, directions, generator=None)[0]
     # Initial one-step opacity 1e-4 over ~32 samples leaves ~0.3 % of the weight inside: within 0.01 of 1.9.
     torch.testing.assert_close(depth, torch.full((5,), 1.9), atol=0.01, rtol=0)
 
@@ -38,10 +38,29 @@ def test_seeded_surface_gives_its_depth() -> None:
     occupied = field.seed_density(points, alpha=0.99)
     assert 0.05 < occupied < 0.15  # one plane of 33, dilated to three
     origins, directions = _rays_along_minus_z(5)
-    depth = field.render_training_depth(origins, directions, generator=None)
+    depth = field.render_training_depth(origins, directions, generator=None)[0]
     # The surface is at depth 1.4 from z = 0.9; trilinear blending with the empty neighbours puts the
     # weight's centre within a vertex spacing (0.0625) in front of it.
     assert bool(((depth > 1.4 - 0.0625) & (depth < 1.42)).all()), depth
+
+
+def test_weight_in_front_of_the_reading_counts_a_floater_only() -> None:
+    """A seeded surface at depth 1.4 with nothing in front leaves ~no weight before 1.4 - 2 vertices;
+    a floater plane at depth 0.6 in front of it takes most of the weight there (one-step opacity 0.99)."""
+    field = GridField(BOX, GridFieldConfig(voxels=33**3), background=None)  # vertices every 1/16
+    u = torch.linspace(-0.9, 0.9, 60)
+    plane = torch.stack(torch.meshgrid(u, u, indexing="ij"), dim=-1).reshape(-1, 2)
+    surface = torch.cat((plane, torch.full((len(plane), 1), -0.5)), dim=-1)
+    field.seed_density(surface, alpha=0.99)
+    origins, directions = _rays_along_minus_z(5)
+    until = torch.full((5,), 1.4 - 2 * field.voxel_size)
+    depth, clear = field.render_training_depth(origins, directions, generator=None, free_space_until=until)
+    assert float(clear.max()) < 1e-3, clear
+    field.seed_density(torch.cat((plane, torch.full((len(plane), 1), 0.3)), dim=-1), alpha=0.99)
+    depth_with_floater, blocked = field.render_training_depth(origins, directions, generator=None, free_space_until=until)
+    assert bool((blocked > 0.9).all()), blocked
+    assert bool((depth_with_floater < depth).all())
+    assert field.render_training_depth(origins, directions, generator=None)[1] is None
 
 
 def test_short_rgbd_build_learns_the_depth_images(shared_data: Path) -> None:
@@ -58,7 +77,7 @@ def test_short_rgbd_build_learns_the_depth_images(shared_data: Path) -> None:
     origins, directions, observed = depth_training_rays(frames, torch.device("cpu"))
     pick = torch.randperm(len(observed), generator=torch.Generator().manual_seed(0))[:3000]
     with torch.no_grad():
-        rendered = radiance_map.field.render_training_depth(origins[pick], directions[pick], generator=None)
+        rendered = radiance_map.field.render_training_depth(origins[pick], directions[pick], generator=None)[0]
     correlation = torch.corrcoef(torch.stack((rendered, observed[pick])))[0, 1]
     # Sensor depths here span ~0.8-3.5 m; the map's rendered depth correlates ~0.9 when written.
     assert float(correlation) > 0.7, float(correlation)

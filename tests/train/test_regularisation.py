@@ -23,17 +23,29 @@ def test_exposure_starts_as_the_identity_and_learns_a_gain_and_bias() -> None:
     colours = torch.rand(256, 3, generator=generator)
     image_index = torch.randint(0, 2, (256,), generator=generator)
     torch.testing.assert_close(exposure(colours, image_index), colours)
-    # Image 1 was taken 1.3× brighter with a 0.05 offset in red; image 0 as rendered.
-    gain = torch.tensor([[1.0, 1.0, 1.0], [1.3, 1.3, 1.3]])
-    bias = torch.tensor([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0]])
+    # Image 1 was taken 1.5× brighter than image 0 with a 0.1 offset in red: about the average exposure,
+    # image 0 is 0.8× and image 1 1.2× as bright, with red offsets -0.05 and +0.05.
+    gain = torch.tensor([[0.8, 0.8, 0.8], [1.2, 1.2, 1.2]])
+    bias = torch.tensor([[-0.05, 0.0, 0.0], [0.05, 0.0, 0.0]])
     target = colours * gain[image_index] + bias[image_index]
     optimizer = torch.optim.Adam(exposure.parameters(), lr=0.02)
     for _ in range(500):
         optimizer.zero_grad()
         torch.mean((exposure(colours, image_index) - target) ** 2).backward()
         optimizer.step()
-    torch.testing.assert_close(exposure.gain.detach(), gain, atol=0.01, rtol=0)
-    torch.testing.assert_close(exposure.bias.detach(), bias, atol=0.01, rtol=0)
+    learned_gain, learned_bias = exposure.transforms()
+    torch.testing.assert_close(learned_gain.detach(), gain, atol=0.01, rtol=0)
+    torch.testing.assert_close(learned_bias.detach(), bias, atol=0.01, rtol=0)
+
+
+def test_exposure_is_anchored_to_the_average_image() -> None:
+    """A change common to every image is the field's to learn, not the transforms': they keep mean gain 1 and mean bias 0."""
+    exposure = ImageExposure(3)
+    with torch.no_grad():
+        exposure.gain.mul_(torch.tensor([[1.3], [1.3], [1.3]]))
+        exposure.bias.add_(0.2)
+    colours = torch.rand(8, 3, generator=torch.Generator().manual_seed(4))
+    torch.testing.assert_close(exposure(colours, torch.arange(8) % 3), colours)
 
 
 def test_exposure_refuses_an_empty_image_set() -> None:
@@ -92,8 +104,11 @@ def test_short_rgbd_build_with_exposure_and_total_variation(shared_data: Path) -
 def test_room_settings_replace_the_defaults_for_rgbd_data_only_and_explicit_settings_win(shared_data: Path) -> None:
     frames = read_dataset(shared_data / "7scenes_redkitchen", split="train", downscale=16, stride=120)
     room = config_for(frames, BuildConfig())
-    assert room.field.voxels == RoomConfig().voxels and room.tv_weight == RoomConfig().tv_weight
-    explicit = config_for(frames, BuildConfig(field=GridFieldConfig(voxels=1000), tv_weight=0.0))
-    assert explicit.field.voxels == 1000 and explicit.tv_weight == 0.0
+    expected = RoomConfig()
+    assert (room.field.voxels, room.field.features) == (expected.voxels, expected.features)
+    assert (room.tv_weight, room.depth_weight, room.free_space_weight) == (expected.tv_weight, expected.depth_weight, expected.free_space_weight)
+    explicit = config_for(frames, BuildConfig(field=GridFieldConfig(voxels=1000, features=8), tv_weight=0.0, depth_weight=0.1, free_space_weight=0.0))
+    assert (explicit.field.voxels, explicit.field.features) == (1000, 8)
+    assert (explicit.tv_weight, explicit.depth_weight, explicit.free_space_weight) == (0.0, 0.1, 0.0)
     colour_only = config_for(frames.without_depth(), BuildConfig())
-    assert colour_only.field.voxels == GridFieldConfig().voxels and colour_only.tv_weight == 0.0
+    assert colour_only.field == GridFieldConfig() and (colour_only.tv_weight, colour_only.free_space_weight) == (0.0, 0.0)
