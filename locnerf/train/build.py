@@ -78,7 +78,7 @@ class RoomConfig(BaseModel):
     voxels: int = Field(64**3, gt=0, description="Grid vertices in all (redkitchen: 87×49×65, 5.6 cm voxels, against 2.8 cm at the general 128³).")
     features: int = Field(0, ge=0, description="View-feature channels per vertex (the field's features): 0, diffuse colour only.")
     tv_weight: float = Field(0.01, ge=0, description="Weight of the grid's total variation (BuildConfig.tv_weight).")
-    depth_weight: float = Field(0.3, ge=0, description="Weight of the expected-depth loss (BuildConfig.depth_weight).")
+    depth_weight: float = Field(1.0, ge=0, description="Weight of the expected-depth loss (BuildConfig.depth_weight).")
     free_space_weight: float = Field(0.1, ge=0, description="Weight of the free-space loss (BuildConfig.free_space_weight).")
 
 
