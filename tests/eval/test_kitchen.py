@@ -29,6 +29,8 @@ KITCHEN = SHARED_DATA / "7scenes_redkitchen"
 DOWNSCALE = "16"  # 40×30 px, the tiny map's camera
 LIVE_SPEED = "0.0964"  # docs/RESULTS.md's live runs: one frame per 15 Hz odometry tick
 
+pytestmark = pytest.mark.skipif(not KITCHEN.is_dir(), reason=f"7-Scenes redkitchen not found at {KITCHEN}")
+
 
 @pytest.fixture(scope="module")
 def tiny_kitchen_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
@@ -38,8 +40,6 @@ def tiny_kitchen_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
     CPU lock): 12 s, test-split PSNR 17.5 dB over every 40th test frame at 40×30 (a black image
     scores 5.4 dB there).
     """
-    if not KITCHEN.is_dir():
-        pytest.skip(f"7-Scenes redkitchen not found at {KITCHEN}")
     train = read_dataset(KITCHEN, split="train", downscale=int(DOWNSCALE), stride=60)
     config = BuildConfig(steps=200, batch_rays=1024, depth_batch_rays=1024, field=GridFieldConfig(voxels=32**3), seed=0, threads=1)
     return save_map(build_map(train, config), tmp_path_factory.mktemp("maps") / "tiny_kitchen.locmap")
