@@ -162,8 +162,51 @@ def test_refuses_an_empty_split(tmp_path: Path) -> None:
 
 def test_refuses_an_unknown_split(tmp_path: Path) -> None:
     root = _fake_scene(tmp_path / "scene")
-    with pytest.raises(ValueError, match=r"split 'val': expected one of \['all', 'test', 'train'\]"):
+    with pytest.raises(ValueError, match=r"split 'val': expected one of \['all', 'test', 'train'\] for a 7-Scenes folder") as refused:
         read_seven_scenes(root, "val", downscale=2, intrinsics=CAMERA)
+    assert str(root) in str(refused.value)
+
+
+def test_refuses_a_split_file_naming_something_else_than_a_sequence(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    (root / "TestSplit.txt").write_text("sequence2\nseq-03\n")
+    with pytest.raises(ValueError, match=r"TestSplit\.txt: line 'seq-03', expected 'sequenceN'"):
+        read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA)
+    (root / "TestSplit.txt").write_text("sequence3\n")
+    with pytest.raises(FileNotFoundError, match=r"TestSplit\.txt names sequence3: folder .*seq-03 not found"):
+        read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA)
+    (root / "TestSplit.txt").unlink()
+    with pytest.raises(FileNotFoundError, match=r"TestSplit\.txt: no such file \(a 7-Scenes split file naming 'sequenceN' lines\)"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)  # every split reads both files (frame numbering)
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [("1 0 0\n0 1 0\n0 0 1\n", r"expected a finite 4x4 matrix, got shape \(3, 3\)"), ("pose unknown\n", r"not a 4x4 table of numbers")],
+)
+def test_refuses_a_pose_file_that_is_not_a_4x4_matrix(tmp_path: Path, content: str, expected: str) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    (root / "seq-02" / "frame-000004.pose.txt").write_text(content)
+    with pytest.raises(ValueError, match=r"frame-000004\.pose\.txt: " + expected):
+        read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA)
+
+
+def test_refuses_colour_images_of_mixed_sizes(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    cv2.imwrite(str(root / "seq-01" / "frame-000001.color.png"), np.zeros((2 * HEIGHT, 2 * WIDTH, 3), np.uint8))
+    with pytest.raises(ValueError, match=r"frame-000001\.color\.png has size 8x6: expected 4x3 like .*frame-000000\.color\.png"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
+
+
+def test_refuses_a_missing_or_non_millimetre_depth_image(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    depth = root / "seq-01" / "frame-000001.depth.png"
+    depth.unlink()
+    with pytest.raises(FileNotFoundError, match=r"frame-000001\.depth\.png: no such file or not an image \(the frame's uint16 depth in mm\)"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
+    cv2.imwrite(str(depth), np.full((HEIGHT // 2, WIDTH // 2), 200, np.uint8))
+    with pytest.raises(ValueError, match=r"frame-000001\.depth\.png: uint8 image of shape \(3, 4\), expected single-channel uint16 millimetres"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA)
 
 
 def test_real_redkitchen_frames(shared_data: Path) -> None:
