@@ -46,7 +46,8 @@ class _Update:
 @dataclass(frozen=True)
 class CompletedUpdate:
     """Joined results: ``ids`` (N,) and ``log_likelihoods`` (N,) of snapshot ``(epoch, generation)``,
-    with the update's ``image`` (H, W, 3) if one was kept and its camera."""
+    with the update's ``image`` (H, W, 3) if one was kept, its camera, and the γ the workers used
+    (None: the localizer's configured one)."""
 
     epoch: int
     generation: int
@@ -55,6 +56,7 @@ class CompletedUpdate:
     latency: float
     image: torch.Tensor | None
     intrinsics: PinholeIntrinsics
+    exponent: float | None = None
 
 
 AddressedRequest = tuple[str, UpdateRequest]
@@ -191,6 +193,7 @@ class UpdateDispatcher:
             latency=now - update.started,
             image=update.image,
             intrinsics=update.shards[0].request.intrinsics,
+            exponent=update.shards[0].request.exponent,
         )
 
     def expire(self, now: float) -> int:
