@@ -315,7 +315,6 @@ class Localizer:
         ids: torch.Tensor,
         log_likelihoods: torch.Tensor,
         find_candidates: CandidateSource | None = None,
-        exponent: float | None = None,
     ) -> MergeReport:
         """Merge an update computed on snapshot ``(epoch, generation)``.
 
@@ -324,9 +323,6 @@ class Localizer:
             log_likelihoods: (K,) log-likelihoods of those particles (−inf allowed; NaN counts as −inf).
             find_candidates: called, only when this merge injects recovery particles, for the
                 keyframes that match the update's image (e.g. ``lambda: localizer.keyframe_candidates(image, intrinsics)``).
-            exponent: the γ the log-likelihoods were computed with (None: ``measurement.exponent``);
-                recovery compares likelihoods rescaled to ``measurement.exponent``, so that an
-                exponent per pixel (``measurement.exponent_reference_pixels``) does not look like a drop.
         Returns:
             What happened (see :class:`MergeReport`).
         """
@@ -359,11 +355,7 @@ class Localizer:
 
         combined = particles.log_weights.double().cpu() + per_particle
         particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
-        reference = self.config.measurement.exponent
-        if exponent is not None and not (math.isfinite(exponent) and exponent > 0):
-            raise ValueError(f"exponent={exponent}: expected a finite γ > 0 (the power the log-likelihoods were computed with)")
-        scale = 1.0 if exponent is None else reference / exponent
-        plan = self._recovery.observe(scale * self._log_best_likelihood(particles, per_particle))
+        plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
         injected = self._resample(particles, plan, find_candidates)
         return self._record(MergeOutcome.MERGED, injected)
 
@@ -426,7 +418,6 @@ class Localizer:
         snap = self.snapshot()
         config = self.config.measurement
         pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
-        exponent = config.exponent_for(pixels.shape[0])
         colours = observed_colours(image, pixels)
         log_likelihoods = particle_log_likelihoods(
             snap.poses,
@@ -434,11 +425,11 @@ class Localizer:
             colours.to(self.device),
             intrinsics,
             render_rays,
-            exponent,
+            config.exponent,
             config.ray_chunk,
             config.exposure_gain_range,
         )
-        return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics), exponent)
+        return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics))
 
     def keyframe_candidates(self, image: torch.Tensor, intrinsics: PinholeIntrinsics) -> KeyframeCandidates | None:
         """The keyframes most like ``image`` (H, W, 3) seen with ``intrinsics``, when recovery draws

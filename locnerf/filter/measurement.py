@@ -19,11 +19,6 @@ particles (a global start) takes many cheap updates and a converged one, shrunk 
 gets the full M back. The likelihood is a power of the mean squared error, so its sharpness does
 not depend on M; fewer pixels make it noisier, not flatter.
 
-Exponent per pixel (ours, off by default): with ``exponent_reference_pixels`` M₀ an update of M
-pixels uses ``γ·M/M₀``, as a Gaussian pixel-noise likelihood (``−SSE / 2σ²``, linear in M) would:
-a spread cloud under a ray budget (few pixels, noisy errors) weighs its particles gently and does
-not collapse on a wrong mode, a converged one (the full M) sharply.
-
 Exposure: a camera with auto-exposure (the Kinect of 7-Scenes) sees a surface brighter or darker
 than the map stored it, and the plain SSE then prefers poses whose render happens to match the
 brightness. ``exposure_gain_range`` (off by default) compares each particle's render only after the
@@ -54,11 +49,6 @@ class MeasurementConfig(BaseModel):
 
     pixels: int = Field(64, ge=1, description="M: pixels sampled from each image and rendered per particle.")
     exponent: float = Field(4.0, gt=0, description="γ: power of the (M / SSE) likelihood (4 in the paper).")
-    exponent_reference_pixels: int | None = Field(
-        None,
-        ge=1,
-        description="Exponent per pixel: an update of M pixels uses γ·M / exponent_reference_pixels (module docstring; None: γ for any M).",
-    )
     sampling: Literal["uniform", "gradient"] = Field(
         "gradient", description="How the M pixels are drawn: uniform (the original) or weighted by image gradient (module docstring)."
     )
@@ -88,14 +78,6 @@ class MeasurementConfig(BaseModel):
             if not 0 < low <= 1 <= high:
                 raise ValueError(f"exposure_gain_range={self.exposure_gain_range}: expected 0 < low <= 1 <= high")
         return self
-
-    def exponent_for(self, pixels: int) -> float:
-        """γ for an update that looks at ``pixels`` pixels (see ``exponent_reference_pixels``)."""
-        if pixels < 1:
-            raise ValueError(f"pixels={pixels}: expected at least 1 pixel per update")
-        if self.exponent_reference_pixels is None:
-            return self.exponent
-        return self.exponent * pixels / self.exponent_reference_pixels
 
     def pixels_for(self, particles: int) -> int:
         """M for an update of ``particles`` particles under the ray budget (see ``ray_budget``)."""

@@ -46,8 +46,7 @@ class _Update:
 @dataclass(frozen=True)
 class CompletedUpdate:
     """Joined results: ``ids`` (N,) and ``log_likelihoods`` (N,) of snapshot ``(epoch, generation)``,
-    with the update's ``image`` (H, W, 3) if one was kept, its camera, and the γ the workers used
-    (None: the localizer's configured one)."""
+    with the update's ``image`` (H, W, 3) if one was kept and its camera."""
 
     epoch: int
     generation: int
@@ -56,7 +55,6 @@ class CompletedUpdate:
     latency: float
     image: torch.Tensor | None
     intrinsics: PinholeIntrinsics
-    exponent: float | None = None
 
 
 AddressedRequest = tuple[str, UpdateRequest]
@@ -193,7 +191,6 @@ class UpdateDispatcher:
             latency=now - update.started,
             image=update.image,
             intrinsics=update.shards[0].request.intrinsics,
-            exponent=update.shards[0].request.exponent,
         )
 
     def expire(self, now: float) -> int:
