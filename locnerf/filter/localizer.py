@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
@@ -36,7 +36,6 @@ from locnerf.filter.motion import MotionNoiseConfig, PivotNoise, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
-from locnerf.geometry.se3 import se3_exp
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -52,12 +51,6 @@ class ConvergenceProtectionConfig(BaseModel):
 
     count: int = Field(10, ge=0, description="Particles whose positions are re-drawn before each update (0 disables).")
     half_width: float = Field(0.2, ge=0, description="Re-drawn positions are uniform in mean ± half_width per axis (map units).")
-    pivot: bool = Field(
-        False,
-        description="Re-draw along the valley instead: each chosen particle swings about the point motion.pivot_depth ahead of it by "
-        "angles uniform in ±half_width / pivot_depth about its x and y axes (a sideways move of up to ±half_width with the turn that "
-        "keeps that point in view), keeping its pose otherwise; needs motion.pivot_depth > 0.",
-    )
 
 
 class LocalizerConfig(BaseModel):
@@ -85,12 +78,6 @@ class LocalizerConfig(BaseModel):
     lineage_depth: int = Field(64, ge=1, description="Resampling generations kept for merging delayed updates.")
     mlp_coarse_samples: int = Field(64, ge=1, description="Coarse samples per ray for the nerf-pytorch MLP backend.")
     mlp_fine_samples: int = Field(64, ge=0, description="Fine (importance) samples per ray for the nerf-pytorch MLP backend.")
-
-    @model_validator(mode="after")
-    def _pivot_protection_has_a_depth(self) -> LocalizerConfig:
-        if self.convergence_protection.pivot and self.motion.pivot_depth <= 0:
-            raise ValueError(f"convergence_protection.pivot needs motion.pivot_depth > 0 (the point swung about), got {self.motion.pivot_depth}")
-        return self
 
     def uses_keyframes(self) -> bool:
         """Whether recovery or the keyframe start draws particles around the map's keyframes (a keyframe index is needed)."""
@@ -268,15 +255,8 @@ class Localizer:
         count = min(protection.count, particles.count)
         if count == 0 or protection.half_width == 0:
             return
-        chosen = torch.randperm(particles.count, generator=self.generator)[:count].to(self.device)
-        if protection.pivot:
-            depth = self.config.motion.pivot_depth
-            bound = protection.half_width / depth
-            angles = initialization.uniform(count * 2, -bound, bound, self.generator).reshape(count, 2)
-            swings = se3_exp(angles @ PivotNoise(depth, torch.zeros(2, dtype=torch.float64)).tangent_map().T)
-            particles.poses[chosen] = particles.poses[chosen] @ swings.to(self.device, self.dtype)
-            return
         mean = (particles.weights[:, None] * particles.positions).sum(dim=0)
+        chosen = torch.randperm(particles.count, generator=self.generator)[:count].to(self.device)
         offsets = initialization.uniform(count * 3, -protection.half_width, protection.half_width, self.generator)
         particles.poses[chosen, :3, 3] = mean + offsets.reshape(count, 3).to(self.device, self.dtype)
 
