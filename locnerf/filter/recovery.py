@@ -203,7 +203,7 @@ def keyframe_orbit_particles(
     object from 4.03 units) the truth differs from the best-matching keyframe by a move along the
     sphere around the object, about half a unit, with the rotation that keeps the object in view
     and up to 7° of relative roll. Gaussian draws in 6-D hardly ever land near it; these do
-    (docs/RESULTS.md, "Live lego orbit").
+    (docs/RESULTS.md, "Live lego orbit: orbit draws around keyframes").
 
     Returns:
         (count, 4, 4) float64 on the CPU.
