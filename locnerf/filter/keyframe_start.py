@@ -7,19 +7,17 @@ elevation, its ``up`` axis is z), no uniform particle sees what the camera sees 
 waits for kidnapping recovery to land near the truth by chance. With ``share`` > 0 the first
 update's image is matched against the map's keyframes (:mod:`locnerf.filter.keyframes`) before it
 is rendered and that share of the particles is re-drawn around the best matches, as recovery draws
-its keyframe share (:func:`locnerf.filter.recovery.keyframe_particles`, with recovery's
-``keyframe_count``, ``keyframe_position_sigma`` and ``keyframe_rotation_sigma_deg``); the others
+its keyframe share (:func:`locnerf.filter.recovery.keyframe_draws`, with recovery's
+``keyframe_count`` and spreads, orbit draws included); the others
 stay uniform, in case the match is wrong.
 """
 
 from __future__ import annotations
 
-import math
-
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.filter.recovery import KeyframeCandidates, RecoveryConfig, keyframe_particles
+from locnerf.filter.recovery import KeyframeCandidates, RecoveryConfig, keyframe_draws
 
 
 class KeyframeStartConfig(BaseModel):
@@ -33,9 +31,15 @@ class KeyframeStartConfig(BaseModel):
 
 
 def seed_around_keyframes(
-    poses: torch.Tensor, candidates: KeyframeCandidates, share: float, recovery: RecoveryConfig, generator: torch.Generator
+    poses: torch.Tensor,
+    candidates: KeyframeCandidates,
+    share: float,
+    recovery: RecoveryConfig,
+    generator: torch.Generator,
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0),
 ) -> torch.Tensor:
-    """``poses`` (N, 4, 4) with ``round(share · N)`` of them, chosen at random, re-drawn around ``candidates``.
+    """``poses`` (N, 4, 4) with ``round(share · N)`` of them, chosen at random, re-drawn around
+    ``candidates`` (``up``, the world axis opposite to gravity, levels orbit draws).
 
     Returns:
         (N, 4, 4) poses of the dtype and device of ``poses`` (a new tensor).
@@ -46,8 +50,7 @@ def seed_around_keyframes(
     seeded = poses.clone()
     if count == 0:
         return seeded
-    sigma = recovery.keyframe_position_sigma * candidates.spacing
-    fresh = keyframe_particles(candidates, count, sigma, math.radians(recovery.keyframe_rotation_sigma_deg), generator)
+    fresh = keyframe_draws(candidates, count, recovery, up, generator)
     chosen = torch.randperm(poses.shape[0], generator=generator)[:count].to(poses.device)
     seeded[chosen] = fresh.to(poses.device, poses.dtype)
     return seeded

@@ -171,6 +171,7 @@ class Localizer:
         self._recovery = RecoveryMonitor(config.recovery)
         self._next_id = 0
         self._keyframe_start_pending = False
+        self._start_up: tuple[float, float, float] = (0.0, 1.0, 0.0)
         self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0}
 
     # ----------------------------------------------------------------- initialisation
@@ -205,6 +206,7 @@ class Localizer:
         With ``keyframe_start.share`` > 0 and keyframes, the next image seeds part of them
         (:meth:`seed_from_image`)."""
         self.initialize(initialization.uniform_particles(region.bounds(), self.config.particles, self.generator, tilt, region.up))
+        self._start_up = region.up
         self._keyframe_start_pending = self.config.keyframe_start.share > 0 and self.keyframes is not None
 
     def seed_from_image(self, image: torch.Tensor, intrinsics: PinholeIntrinsics) -> int:
@@ -219,7 +221,7 @@ class Localizer:
             return 0
         particles = self._require_particles()
         share = self.config.keyframe_start.share
-        particles.poses = seed_around_keyframes(particles.poses, candidates, share, self.config.recovery, self.generator)
+        particles.poses = seed_around_keyframes(particles.poses, candidates, share, self.config.recovery, self.generator, self._start_up)
         seeded = round(share * particles.count)
         logger.info("keyframe start: %d of %d particles re-drawn around %d matching keyframes", seeded, particles.count, len(candidates.poses))
         return seeded
