@@ -39,7 +39,7 @@ def tiny_kitchen_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
     One thread: the same map bit for bit on every run. Measured when written (2026-11-25, under the
     CPU lock): 12 s, test-split PSNR 17.5 dB over every 40th test frame at 40×30 (a black image
     scores 5.4 dB there); with the RGB-D defaults of 2026-11-25 01:40 UTC (diffuse colour, free space):
-    11 s, 17.4 dB.
+    10–11 s, 17.4 dB.
     """
     train = read_dataset(KITCHEN, split="train", downscale=int(DOWNSCALE), stride=60)
     config = BuildConfig(steps=200, batch_rays=1024, depth_batch_rays=1024, field=GridFieldConfig(voxels=32**3), seed=0, threads=1)
@@ -152,7 +152,7 @@ def test_offline_tracking_scores_every_odometry_stamp(tiny_kitchen_map: Path, ca
     """4 s of the test sequence, Gaussian start around the truth, 15 Hz odometry, 3 Hz images.
 
     Measured when written (seed 0): converged at once, median 0.19 m / 4.2°, largest error 0.27 m
-    (with the RGB-D defaults of 2026-11-25: 0.25 m / 5.1°, largest 0.28 m);
+    (with the RGB-D defaults and 600 converged particles of 2026-11-25: 0.21 m / 4.8°, largest 0.28 m);
     seeds 1–3 (2 threads): largest errors 0.05–0.11 m, 2.0–3.4°. Bounds: every stamp scored and finite, never more than 0.6 m off (the Gaussian start does not
     get lost in a map of 10 frames), medians under 0.5 m / 30° once converged."""
     report = run_cli(tracking_argv(tiny_kitchen_map, "4") + ["--init", "gaussian", "--quiet"], capsys)
@@ -170,8 +170,9 @@ def test_live_tracking_through_the_services_reports_rates_and_errors(tiny_kitche
     """5 s of sensor time through ingest → filter → 1 worker over loopback Zenoh, global start, 5 Hz images.
 
     Measured when written (seed 0, ~15 s of wall time): 76 poses at 15.0 Hz, realtime factor 1.00,
-    2.6 updates per second, converged after 1.7 s, median 0.13 m / 8.3° (with the RGB-D defaults of
-    2026-11-25: 76 poses, 15.0 Hz, 1.00, 2.6 updates per second, converged after 2.5 s, 0.063 m / 7.6°). Bounds, loose for a loaded
+    2.6 updates per second, converged after 1.7 s, median 0.13 m / 8.3° (with the RGB-D defaults and
+    600 converged particles of 2026-11-25: 76 poses, 15.0 Hz, 1.00, 2.8 updates per second, converged after
+    1.8 s, 0.23 m / 6.7°, largest 0.40 m). Bounds, loose for a loaded
     machine: realtime factor in (0.5, 1.5), pose rate 10–20 Hz, a pose for at least 80 % of the
     odometry messages; the medians, when the filter converged, under 0.5 m and 30°."""
     argv = tracking_argv(tiny_kitchen_map, "5") + ["--live", "--image-rate", "5", "--workers", "1", "--logs", str(tmp_path)]
@@ -182,7 +183,7 @@ def test_live_tracking_through_the_services_reports_rates_and_errors(tiny_kitche
     assert report["update_hz"] > 0.0 and report["updates"] > 0
     assert 60 <= report["odometry_messages"] <= 76 and report["poses"] >= 0.8 * report["odometry_messages"], report
     assert report["stamps"] >= 0.8 * report["odometry_messages"]  # poses scored against the ground truth
-    assert 300 <= report["particles_min"] <= report["particles_max"] <= 2400  # KLD-sampling's bounds in kitchen_live.toml
+    assert 600 <= report["particles_min"] <= report["particles_max"] <= 2400  # KLD-sampling's bounds in kitchen_live.toml
     converged = report["converged_after_s"] is not None
     assert converged == report["start"]["converged"]
     if converged:
