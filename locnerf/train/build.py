@@ -284,7 +284,7 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
             predicted = exposure(predicted, batch // pixels_per_image)
         colour_loss = torch.mean((predicted - colours[batch]) ** 2)
         loss = colour_loss
-        if depth_rays is not None and config.depth_weight > 0:
+        if depth_rays is not None and (config.depth_weight > 0 or config.free_space_weight > 0):
             d_origins, d_directions, d_observed = depth_rays
             d_batch = torch.randint(0, len(d_observed), (config.depth_batch_rays,), generator=generator, device=device)
             observed = d_observed[d_batch]
