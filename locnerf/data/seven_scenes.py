@@ -32,6 +32,7 @@ from locnerf.data.image_files import read_rgb, stack_same_size
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
+from locnerf.geometry.averaging import project_to_rotation
 from locnerf.geometry.frames import opencv_to_opengl
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.rays import camera_directions_from_pixels
@@ -123,8 +124,7 @@ def read_pose(path: Path) -> np.ndarray:
             f"{path}: not a rigid transform (|RᵀR - I| = {error:.2e}, det {np.linalg.det(rotation):.3f}, "
             f"last row {pose[3].tolist()}); expected a rotation, a translation and the row 0 0 0 1"
         )
-    u, _, vt = np.linalg.svd(rotation)
-    pose[:3, :3] = u @ vt
+    pose[:3, :3] = project_to_rotation(torch.from_numpy(rotation)).numpy()
     pose[3] = (0.0, 0.0, 0.0, 1.0)
     return pose
 

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer, SearchRegion
-from locnerf.geometry import make_pose, pose_inverse, rotation_error_deg, se3_exp, translation_error
+from locnerf.geometry import make_pose, relative_pose, rotation_error_deg, se3_exp, translation_error
 from locnerf.sim.scenario import TrackingScenario
 
 logger = logging.getLogger(__name__)
@@ -115,7 +115,7 @@ def run_tracking(
     if updates_per_image < 1:
         raise LocnerfInputError(f"updates per image {updates_per_image}: expected >= 1")
     normalization = radiance_map.normalization
-    T_body_cam = scenario.path.T_body_cam
+    camera_odometry = scenario.odometry @ scenario.path.T_body_cam  # (K, 4, 4): the camera's poses as the odometry reports them
     intrinsics = scenario.path.intrinsics
     start_particles(localizer, scenario.truth[0], start, normalization.up)
     image_ticks = set(scenario.image_ticks)
@@ -123,8 +123,7 @@ def run_tracking(
     started = time.perf_counter()
     for tick in tqdm(range(len(scenario.stamps)), desc="tracking", disable=not show_progress):
         if tick > 0:
-            body_step = pose_inverse(scenario.odometry[tick - 1]) @ scenario.odometry[tick]
-            increment = normalization.increment_to_map(pose_inverse(T_body_cam) @ body_step @ T_body_cam)
+            increment = normalization.increment_to_map(relative_pose(camera_odometry[tick - 1], camera_odometry[tick]))
             localizer.predict(increment.to(localizer.device, localizer.dtype))
         if tick in image_ticks:
             image = scenario.image(tick, image_generator).to(radiance_map.device)

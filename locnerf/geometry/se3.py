@@ -64,4 +64,4 @@ def relative_pose(pose_a: torch.Tensor, pose_b: torch.Tensor) -> torch.Tensor:
 
 def interpolate_pose(start: torch.Tensor, end: torch.Tensor, fraction: float) -> torch.Tensor:
     """Geodesic interpolation ``start · Exp(fraction · Log(start⁻¹ end))`` of poses (..., 4, 4): 0 gives start, 1 end."""
-    return start @ se3_exp(fraction * se3_log(pose_inverse(start) @ end))
+    return start @ se3_exp(fraction * se3_log(relative_pose(start, end)))

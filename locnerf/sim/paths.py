@@ -23,7 +23,7 @@ import torch
 from locnerf.data import PosedImages, read_nerf_synthetic
 from locnerf.data.detect import dataset_format, read_dataset
 from locnerf.errors import DatasetError, LocnerfInputError
-from locnerf.geometry import pose_inverse, se3_exp, se3_log
+from locnerf.geometry import relative_pose, se3_exp, se3_log
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.sensors import CameraConfig, observe_image
@@ -136,7 +136,7 @@ class SequencePath:
                 raise LocnerfInputError(f"frame rate {frame_rate} Hz: expected a whole multiple of the odometry rate {odom_rate} Hz")
             self.frame_period = 1.0 / frame_rate
         closed = torch.cat([poses, poses[:1]])
-        self._tangents = se3_log(pose_inverse(closed[:-1]) @ closed[1:])  # (K, 6) frame j -> j + 1
+        self._tangents = se3_log(relative_pose(closed[:-1], closed[1:]))  # (K, 6) frame j -> j + 1
 
     @property
     def duration(self) -> float:

@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import MapNormalization
-from locnerf.geometry import pose_inverse
+from locnerf.geometry import pose_inverse, relative_pose
 from locnerf.sim.paths import CameraPath
 from locnerf.sim.sensors import VioConfig, simulate_odometry
 
@@ -144,7 +144,7 @@ def _simulate_segments(
             if kidnap_correction is None:
                 before = perceived[jump - 1] if jump > 0 else last[0]
                 unseen = path.poses_at(timeline.stamps[kidnap_tick - 1 : kidnap_tick + 1])
-                step = pose_inverse(unseen[0]) @ unseen[1]
+                step = relative_pose(unseen[0], unseen[1])
                 kidnap_correction = before @ step @ pose_inverse(metric[jump])
             perceived[jump:] = kidnap_correction @ metric[jump:]
         body = perceived @ to_body

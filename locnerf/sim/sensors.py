@@ -24,7 +24,7 @@ from collections.abc import Callable
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
+from locnerf.geometry.se3 import make_pose, relative_pose, se3_exp
 from locnerf.geometry.so3 import so3_exp
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
@@ -55,7 +55,7 @@ def simulate_odometry(true_poses: torch.Tensor, config: VioConfig, generator: to
     if true_poses.ndim != 3 or true_poses.shape[0] < 1:
         raise ValueError(f"true_poses: expected shape (K, 4, 4) with K >= 1, got {tuple(true_poses.shape)}")
     poses = true_poses.double().cpu()
-    increments = pose_inverse(poses[:-1]) @ poses[1:]  # (K-1, 4, 4)
+    increments = relative_pose(poses[:-1], poses[1:])  # (K-1, 4, 4)
     count = increments.shape[0]
     yaw = torch.zeros(count, 3, dtype=torch.float64)
     yaw[:, 1] = config.yaw_drift_rate / config.rate

@@ -291,7 +291,8 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
             free_space_until = observed - config.free_space_margin * field.voxel_size if config.free_space_weight > 0 else None
             expected, in_front = field.render_training_depth(d_origins[d_batch], d_directions[d_batch], generator, free_space_until)
             d_loss = depth_loss(expected, observed)
-            loss = loss + config.depth_weight * d_loss
+            if config.depth_weight > 0:
+                loss = loss + config.depth_weight * d_loss
             if in_front is not None:
                 loss = loss + config.free_space_weight * in_front.mean()
             depth_history.append(float(d_loss.detach()))

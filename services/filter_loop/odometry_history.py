@@ -6,7 +6,7 @@ import bisect
 
 import torch
 
-from locnerf.geometry.se3 import interpolate_pose, pose_inverse
+from locnerf.geometry.se3 import interpolate_pose, relative_pose
 
 
 class OdometryHistory:
@@ -45,7 +45,7 @@ class OdometryHistory:
         pose = T_odom_body.double()
         if self._stamps and stamp <= self._stamps[-1]:
             raise ValueError(f"odometry stamp {stamp} is not after the previous one {self._stamps[-1]}")
-        increment = pose_inverse(self._poses[-1]) @ pose if self._poses else None
+        increment = relative_pose(self._poses[-1], pose) if self._poses else None
         self._stamps.append(stamp)
         self._poses.append(pose)
         while self._stamps[0] < stamp - self.horizon:
@@ -76,4 +76,4 @@ class OdometryHistory:
         latest = self.latest_stamp
         if latest is None or stamp >= latest:
             return None
-        return pose_inverse(self._poses[-1]) @ self.pose_at(stamp)
+        return relative_pose(self._poses[-1], self.pose_at(stamp))

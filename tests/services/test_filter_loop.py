@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from locnerf.config import preset
+from locnerf.errors import ConfigError
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import carry_estimate
 from locnerf.filter.localizer import Localizer, SearchRegion
@@ -29,7 +30,7 @@ from locnerf.messages.schemas import (
 )
 from locnerf.sim.events import GroundTruthEvent
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.__main__ import FilterProcessConfig, build_loop
+from services.filter_loop.__main__ import FilterProcessConfig, build_loop, localizer_config
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
 from services.filter_loop.state_file import SavedPose
@@ -37,6 +38,7 @@ from services.filter_loop.state_writer import StateWriter
 from services.nerf_worker.service import NerfWorker
 from services.sensor_ingest.service import event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from tests.conftest import REPO_ROOT
 
 ROBOT = "r"
 
@@ -510,3 +512,12 @@ def test_the_first_update_after_a_global_start_is_seeded_at_the_keyframes_and_si
     ((_, request),) = harness.requests
     assert len(request.pixels) == 20
     assert near_camera(torch.tensor(request.poses, dtype=torch.float64).reshape(-1, 4, 4)) > 0
+
+
+def test_the_services_refuse_the_offline_only_exposure_likelihood() -> None:
+    """Update requests do not carry measurement.exposure_gain_range, so a file that sets it would be
+    scored differently live than offline: the filter process refuses it, naming the file and the option."""
+    config_file = REPO_ROOT / "configs" / "kitchen_single_image.toml"
+    with pytest.raises(ConfigError, match=r"kitchen_single_image\.toml: measurement\.exposure_gain_range is offline only"):
+        localizer_config(str(config_file))
+    assert localizer_config("llff").measurement.exposure_gain_range is None
