@@ -521,3 +521,46 @@ def test_the_services_refuse_the_offline_only_exposure_likelihood() -> None:
     with pytest.raises(ConfigError, match=r"kitchen_single_image\.toml: measurement\.exposure_gain_range is offline only"):
         localizer_config(str(config_file))
     assert localizer_config("llff").measurement.exposure_gain_range is None
+
+
+def test_idle_workers_repeat_the_last_image_but_never_before_a_newer_one(world, generator):
+    """``idle_repeats = 2``: after an image's update has merged and while no other update is in
+    flight, the loop sends the same image twice more (fresh pixels, same stamp), then waits; a new
+    image goes out at once, even while a repeat is in flight, and restarts the repeats."""
+    settings = preset("llff", idle_repeats=2)
+    harness = Harness(world, FilterLoopConfig(max_in_flight=2), localizer_config=settings)
+    harness.add_worker("w1")
+    harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64)))
+    harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator)))
+    harness.tick()
+    harness.tick()  # one update in flight: no repeat yet, though a second slot is free
+    assert len(harness.requests) == 1
+    first = harness.requests.pop()[1]
+    harness.answer(first)
+    harness.tick()
+    (_, repeat) = harness.requests.pop()
+    assert repeat.request_id != first.request_id and repeat.pixels != first.pixels
+    harness.loop.handle_image(_image(world, 0.2, world.sample_camera_pose(generator)))
+    harness.tick()  # the newer image starts beside the repeat in flight
+    (_, newer) = harness.requests.pop()
+    harness.answer(repeat)
+    harness.tick()
+    assert harness.requests == []  # the newer image's update is in flight
+    harness.answer(newer)
+    for _ in range(3):
+        harness.tick()
+        if harness.requests:
+            harness.answer(harness.requests.pop()[1])
+    assert harness.requests == []
+    counters = harness.loop.counters()
+    assert counters["updates_repeated"] == 3 and counters["updates_merged"] == 5 and counters["updates_started"] == 5
+
+
+def test_no_repeats_by_default(world, generator):
+    harness = Harness(world)
+    harness.add_worker("w1")
+    harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator)))
+    harness.tick()
+    harness.answer(harness.requests.pop()[1])
+    harness.tick()
+    assert harness.requests == [] and harness.loop.counters()["updates_repeated"] == 0
