@@ -75,13 +75,6 @@ class LocalizerConfig(BaseModel):
     keyframe_start: KeyframeStartConfig = Field(
         default_factory=KeyframeStartConfig, description="Re-drawing part of a uniform global start around the keyframes that match the first image."
     )
-    idle_repeats: int = Field(
-        0,
-        ge=0,
-        description="Live filter loop only: further updates on the newest image (a fresh pixel draw each), each started only while "
-        "no update is in flight and no newer image is waiting, so workers that would idle between images refine on it; 0: one update "
-        "per image. (Offline, `eval tracking --updates-per-image` repeats unconditionally.)",
-    )
     lineage_depth: int = Field(64, ge=1, description="Resampling generations kept for merging delayed updates.")
     mlp_coarse_samples: int = Field(64, ge=1, description="Coarse samples per ray for the nerf-pytorch MLP backend.")
     mlp_fine_samples: int = Field(64, ge=0, description="Fine (importance) samples per ray for the nerf-pytorch MLP backend.")

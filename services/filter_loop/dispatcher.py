@@ -94,11 +94,6 @@ class UpdateDispatcher:
         return bool(self.workers) and len(self.pending) < self.max_in_flight
 
     @property
-    def idle(self) -> bool:
-        """No update is pending."""
-        return not self.pending
-
-    @property
     def in_flight(self) -> int:
         """Shards sent and not answered."""
         return sum(s.log_likelihoods is None for update in self.pending.values() for s in update.shards)

@@ -134,9 +134,6 @@ class FilterLoop:
         self.odometry_restarts = 0
         self._stepped_back: list[float] = []
         self._image: tuple[ImageHeader, np.ndarray] | None = None
-        self._last_image: tuple[ImageHeader, np.ndarray] | None = None
-        self._repeats_left = 0
-        self.updates_repeated = 0
         self._last_particles = self._last_status = -float("inf")
         self._start()
 
@@ -340,20 +337,12 @@ class FilterLoop:
 
     # ------------------------------------------------------------------ periodic work
     def tick(self) -> Outgoing:
-        """Expire or start an update (on a new image, or again on the last one while the workers are idle:
-        ``LocalizerConfig.idle_repeats``); publish particles and status when due."""
+        """Expire or start an update; publish particles and status when due."""
         now = self.clock()
         self.dispatcher.expire(now)
         out: Outgoing = []
-        if self.running and self.dispatcher.can_start:
-            if self._image is not None:
-                self._last_image, self._image = self._image, None
-                self._repeats_left = self.localizer.config.idle_repeats
-                out += self._start_update(now, self._last_image)
-            elif self._repeats_left > 0 and self.dispatcher.idle:
-                self._repeats_left -= 1
-                self.updates_repeated += 1
-                out += self._start_update(now, self._last_image)
+        if self.running and self._image is not None and self.dispatcher.can_start:
+            out += self._start_update(now)
         if self.running and now - self._last_particles >= 1.0 / self.config.particles_rate:
             self._last_particles = now
             out.append(self._particles_message())
@@ -362,9 +351,9 @@ class FilterLoop:
             out.append((self._key(keys.STATUS), encode(self.status())))
         return out
 
-    def _start_update(self, now: float, frame: tuple[ImageHeader, np.ndarray]) -> Outgoing:
-        """Snapshot the particles carried to the stamp of ``frame`` (header, (H, W, 3) uint8 pixels) and send its update."""
-        header, pixels = frame
+    def _start_update(self, now: float) -> Outgoing:
+        header, pixels = self._image
+        self._image = None
         try:
             carry = self.history.carry_to(header.stamp)
         except ValueError as error:
@@ -404,7 +393,6 @@ class FilterLoop:
             "odometry_restarts": self.odometry_restarts,
             "inbox_dropped": self.inbox_dropped,
             "images_received": self.images_received,
-            "updates_repeated": self.updates_repeated,
             "state_save_failures": self.persistence.failures,
         }
         counts |= dict(self.dispatcher.counters)
