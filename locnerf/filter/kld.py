@@ -46,13 +46,6 @@ class KldConfig(BaseModel):
     min_particles: int = Field(100, ge=1, description="Fewest particles kept (nav2 min_particles); the maximum is LocalizerConfig.particles.")
     bin_translation: float = Field(0.02, gt=0, description="Histogram cell side along each position axis, map units.")
     bin_rotation_deg: float = Field(2.0, gt=0, description="Histogram cell side along each rotation-vector axis, degrees.")
-    keep_fraction: float = Field(
-        0.0,
-        ge=0,
-        lt=1,
-        description="Share of the previous count that one resampling keeps at least (0.5: the count at most halves per update, "
-        "so a cloud that has just gathered keeps its diversity for a few more updates; 0: it falls to the bound at once).",
-    )
 
 
 def kld_bound(bins: torch.Tensor, epsilon: float, z: float) -> torch.Tensor:
@@ -71,16 +64,9 @@ def pose_bins(poses: torch.Tensor, config: KldConfig) -> torch.Tensor:
     return torch.cat([position, rotation], dim=1).long()
 
 
-def fewest_particles(config: KldConfig, max_particles: int, previous_count: int) -> int:
-    """The fewest particles one resampling may keep: ``min_particles``, and at least
-    ``keep_fraction`` of ``previous_count`` (rounded up); never more than ``max_particles``."""
-    return min(max(config.min_particles, math.ceil(config.keep_fraction * previous_count)), max_particles)
-
-
-def kld_sample_size(cells: torch.Tensor, config: KldConfig, max_particles: int, fewest: int) -> int:
+def kld_sample_size(cells: torch.Tensor, config: KldConfig, max_particles: int) -> int:
     """How many of the draws (in order) KLD-sampling keeps: the first n with n ≥ n(k_n) and
-    n ≥ ``fewest`` (:func:`fewest_particles`), where k_n counts the cells ``cells`` (D, 6) hit by
-    draws 1..n; D if none.
+    n ≥ min_particles, where k_n counts the cells ``cells`` (D, 6) hit by draws 1..n; D if none.
 
     All D draws are binned at once: k_n is the running count of first visits to a cell.
     """
@@ -90,13 +76,13 @@ def kld_sample_size(cells: torch.Tensor, config: KldConfig, max_particles: int, 
     first_visit = torch.full((int(cell.max()) + 1,), count, dtype=torch.long, device=cell.device).scatter_reduce(0, cell, order, "amin")
     occupied = torch.cumsum((first_visit[cell] == order).long(), dim=0)
     n = order + 1
-    enough = (n >= kld_bound(occupied, config.epsilon, config.z).ceil()) & (n >= fewest)
+    enough = (n >= kld_bound(occupied, config.epsilon, config.z).ceil()) & (n >= min(config.min_particles, max_particles))
     hits = torch.nonzero(enough)
     return int(hits[0]) + 1 if hits.numel() else min(count, max_particles)
 
 
 def kld_resample(weights: torch.Tensor, poses: torch.Tensor, config: KldConfig, max_particles: int, resampler, generator: torch.Generator) -> torch.Tensor:
-    """Indices (n,) int64 of the particles kept, ``fewest_particles(config, max_particles, N) ≤ n ≤ max_particles``.
+    """Indices (n,) int64 of the particles kept, ``min_particles ≤ n ≤ max_particles``.
 
     Args:
         weights: (N,) normalised weights.
@@ -105,6 +91,5 @@ def kld_resample(weights: torch.Tensor, poses: torch.Tensor, config: KldConfig, 
     """
     draws = resampler(weights, max_particles, generator)
     draws = draws[torch.randperm(max_particles, generator=generator).to(draws.device)]
-    fewest = fewest_particles(config, max_particles, int(weights.shape[0]))
-    size = kld_sample_size(pose_bins(poses[draws], config), config, max_particles, fewest)
+    size = kld_sample_size(pose_bins(poses[draws], config), config, max_particles)
     return draws[:size]

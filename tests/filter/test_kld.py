@@ -11,7 +11,7 @@ import torch
 
 from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.filter.annealing import AnnealingConfig
-from locnerf.filter.kld import KldConfig, fewest_particles, kld_bound, kld_resample
+from locnerf.filter.kld import KldConfig, kld_bound, kld_resample
 from locnerf.filter.localizer import ConvergenceProtectionConfig
 from locnerf.filter.resampling import multinomial_resample, systematic_resample
 from locnerf.geometry import make_pose, so3_exp
@@ -93,26 +93,6 @@ def test_localizer_shrinks_on_convergence_and_late_results_still_merge_by_ancest
     assert late_report.outcome == "merged"
     assert localizer.particles.count == 100
     assert localizer.counters == {"merged": 2, "stale": 0, "degenerate": 0, "injected": 0}
-
-
-def test_keep_fraction_bounds_each_shrink_from_below():
-    """A one-cell posterior (bound 0) falls to min_particles at once by default; with keep_fraction
-    0.5 each resampling keeps at least half the previous count: 2000 -> 1000 -> 500 -> 250 -> 200."""
-    assert fewest_particles(KLD, 2000, 2000) == 100
-    assert fewest_particles(KLD.model_copy(update={"keep_fraction": 0.3}), 2000, 1001) == 301  # ceil(300.3)
-    assert fewest_particles(KLD.model_copy(update={"keep_fraction": 0.9}), 500, 2000) == 500  # never above the maximum
-    halving = KLD.model_copy(update={"keep_fraction": 0.5, "min_particles": 200})
-    generator = torch.Generator().manual_seed(3)
-    counts = [2000]
-    for _ in range(4):
-        weights = torch.full((counts[-1],), 1 / counts[-1], dtype=torch.float64)
-        counts.append(int(kld_resample(weights, concentrated(counts[-1], generator), halving, 2000, multinomial_resample, generator).numel()))
-    assert counts == [2000, 1000, 500, 250, 200]
-
-
-def test_keep_fraction_is_validated():
-    with pytest.raises(ValueError, match="keep_fraction"):
-        KldConfig(keep_fraction=1.0)
 
 
 def test_kld_is_off_by_default():
