@@ -30,6 +30,7 @@ from locnerf.eval.real_data import (
 )
 from locnerf.eval.single_image import TrialConfig
 from locnerf.filter import Localizer
+from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import open_map
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import render_image
@@ -74,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
     if args.trials:
         views += seeded_views(pool, args.trials, generator, held_out_frames(args.data, args.split, args.downscale))
     config = load_config(args.config) if args.config else preset(args.preset)
-    localizer = Localizer(config, generator, device=device)
+    keyframes = recovery_keyframes(config, radiance_map, pool.intrinsics, args.seed + 2) if args.protocol == "global" else None
+    localizer = Localizer(config, generator, device=device, keyframes=keyframes)
     trial_config = from_flags(TrialConfig, {"protocol": args.protocol, "updates": args.updates, "up": radiance_map.normalization.up})
     results = []
     for view in tqdm(views, desc=f"{args.protocol} trials", disable=args.json):

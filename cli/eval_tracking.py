@@ -29,7 +29,7 @@ from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import WORLD, open_map
 from locnerf.sim.paths import CameraPath, WorldPath, read_sequence_path
-from locnerf.sim.scenario import ScenarioConfig, build_scenario
+from locnerf.sim.scenario import ScenarioConfig, build_scenario, check_timeline
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld
@@ -135,12 +135,16 @@ def run(args: argparse.Namespace) -> int:
     if args.odom_rate <= 0 or image_rate <= 0:
         raise LocnerfInputError(f"--odom-rate {args.odom_rate}, --image-rate {image_rate}: expected positive rates")
     criterion = convergence_criterion(args)
+    scenario_config = from_flags(
+        ScenarioConfig, {"duration": args.duration, "image_rate": image_rate, "vio": vio_config(args), "kidnap_at": args.kidnap_at, "seed": args.seed}
+    )
     if args.live:
         if args.background != "white" or args.updates_per_image != 1 or args.init != "global" or args.no_recovery or args.plots:
             raise LocnerfInputError(
                 "--live: --background white, --updates-per-image 1, --init global, no --no-recovery and no --plots (the services do not do the others)"
             )
         path = camera_path(args, open_map(args.map, torch.device("cpu")))
+        check_timeline(path, scenario_config)
         sensor_seconds = args.duration if args.duration is not None else path.duration
         report = run_live(args, criterion, image_rate, vio_config(args).model_dump(), sensor_seconds)
         print(json.dumps(report) if args.json else json.dumps(report, indent=2))
@@ -148,13 +152,7 @@ def run(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
     path = camera_path(args, radiance_map)
-    scenario = build_scenario(
-        path,
-        from_flags(
-            ScenarioConfig, {"duration": args.duration, "image_rate": image_rate, "vio": vio_config(args), "kidnap_at": args.kidnap_at, "seed": args.seed}
-        ),
-        radiance_map.normalization,
-    )
+    scenario = build_scenario(path, scenario_config, radiance_map.normalization)
     config = localizer_config(args)
     region = search_region(radiance_map) if config.recovery.enabled else None
     keyframes = recovery_keyframes(config, radiance_map, path.intrinsics, args.seed + 2)

@@ -142,8 +142,8 @@ class Localizer:
         region: search region for recovery injections (required when recovery is enabled).
         keyframes: the map's keyframes; when a merge injects recovery particles, the update's image
             is matched against them and a share (``recovery.keyframe_share``) of the fresh
-            particles is drawn around the best matches; after a uniform start, the first image
-            re-draws a share (``keyframe_start.share``) of the particles likewise.
+            particles is drawn around the best matches; after a uniform or global start, the first
+            image re-draws a share (``keyframe_start.share``) of the particles likewise.
     """
 
     def __init__(
@@ -193,8 +193,12 @@ class Localizer:
         self.initialize(initialization.inerf_particles(center, self.config.particles, self.generator, translation_half_width, max_angle_deg))
 
     def initialize_global(self, center: torch.Tensor, half_width: float = 1.0, up: tuple[float, float, float] = (0.0, 1.0, 0.0)) -> None:
-        """The paper's global protocol: cube of side 2·half_width around ``center``, yaw uniform."""
+        """The paper's global protocol: cube of side 2·half_width around ``center``, yaw uniform.
+
+        With ``keyframe_start.share`` > 0 and keyframes, the next image seeds part of them
+        (:meth:`seed_from_image`), as after a uniform start."""
         self.initialize(initialization.global_particles(center, self.config.particles, self.generator, half_width, up))
+        self._arm_keyframe_start(up)
 
     def initialize_gaussian(self, mean: torch.Tensor, covariance: torch.Tensor) -> None:
         """Particles ``mean · Exp(δ)``, δ ~ N(0, covariance) (6×6, rotation first)."""
@@ -206,11 +210,15 @@ class Localizer:
         With ``keyframe_start.share`` > 0 and keyframes, the next image seeds part of them
         (:meth:`seed_from_image`)."""
         self.initialize(initialization.uniform_particles(region.bounds(), self.config.particles, self.generator, tilt, region.up))
-        self._start_up = region.up
+        self._arm_keyframe_start(region.up)
+
+    def _arm_keyframe_start(self, up: tuple[float, float, float]) -> None:
+        """Let the next image seed the start around matching keyframes, when configured and possible."""
+        self._start_up = up
         self._keyframe_start_pending = self.config.keyframe_start.share > 0 and self.keyframes is not None
 
     def seed_from_image(self, image: torch.Tensor, intrinsics: PinholeIntrinsics) -> int:
-        """After a uniform start, re-draw ``keyframe_start.share`` of the particles around the
+        """After a uniform or global start, re-draw ``keyframe_start.share`` of the particles around the
         keyframes most like ``image`` (H, W, 3) in [0, 1] (:mod:`locnerf.filter.keyframe_start`);
         once per start, before its first snapshot. Returns how many particles were re-drawn."""
         if not self._keyframe_start_pending:

@@ -161,6 +161,11 @@ class SequencePath:
         return self.frames.T_world_cam.double()[index] @ se3_exp(fraction * self._tangents[index])
 
     def image_times(self, rate: float, odom_rate: float, duration: float) -> torch.Tensor:
+        if rate * self.frame_period > 1.0 + 1e-9:
+            raise LocnerfInputError(
+                f"image rate {rate} Hz above the sequence's {1.0 / self.frame_period:.4g} frames per second: expected at most one image per frame "
+                "(a faster replay, --speed or --frame-rate, gives more frames per second)"
+            )
         stride = max(1, round(1.0 / (rate * self.frame_period)))
         count = math.floor(duration / (stride * self.frame_period) + 1e-9) + 1
         return torch.arange(count, dtype=torch.float64) * stride * self.frame_period

@@ -108,6 +108,16 @@ def _timeline(path: CameraPath, config: ScenarioConfig) -> _Timeline:
     return _Timeline(stamps, path_times, image_ticks, kidnap_tick)
 
 
+def check_timeline(path: CameraPath, config: ScenarioConfig) -> None:
+    """Refuse now what simulating the run would refuse (rates, kidnapping time), e.g. before
+    services that replay it are started.
+
+    Raises:
+        LocnerfInputError: naming the value and what was expected.
+    """
+    _timeline(path, config)
+
+
 def scenario_segments(
     path: CameraPath, config: ScenarioConfig, normalization: MapNormalization, segment_ticks: int = SEGMENT_TICKS
 ) -> Iterator[TrackingScenario]:

@@ -66,7 +66,7 @@ def _localizer(world: ProceduralWorld, generator: torch.Generator, share: float,
     return Localizer(config, generator, dtype=torch.float64, region=region, keyframes=keyframes)
 
 
-def test_the_first_image_after_a_uniform_start_seeds_particles_near_the_truth_once(world, generator):
+def test_the_first_image_after_a_global_start_seeds_particles_near_the_truth_once(world, generator):
     """40 keyframes; the image is seen from 3 cm and 0.6° off keyframe 17. Uniform particles over the
     room come no closer than 0.1 units and 10° together; after the keyframe start, particles that
     close are found (σ around a keyframe: 5 % of the keyframes' spacing, 5° per axis)."""
@@ -89,9 +89,15 @@ def test_the_first_image_after_a_uniform_start_seeds_particles_near_the_truth_on
     assert torch.equal(localizer.particles.poses, seeded)
     localizer.initialize_uniform(localizer.region)  # a new global start seeds again
     assert localizer.seed_from_image(image, world.default_intrinsics) == 320
+    localizer.initialize_global(poses[3], half_width=0.5, up=world.normalization.up)  # so does the paper's global protocol
+    assert near_truth() == 0
+    assert localizer.seed_from_image(image, world.default_intrinsics) == 320
+    assert near_truth() >= 3
+    localizer.initialize_inerf(poses[3])  # a start near a known pose is left as it is
+    assert localizer.seed_from_image(image, world.default_intrinsics) == 0
 
 
-def test_only_a_uniform_start_with_keyframes_and_a_share_is_seeded(world, generator):
+def test_only_a_global_start_with_keyframes_and_a_share_is_seeded(world, generator):
     poses = torch.stack([world.sample_camera_pose(generator) for _ in range(8)])
     image = world.render_image(poses[0])
     camera = world.default_intrinsics

@@ -70,3 +70,14 @@ def test_live_tracking_in_the_world_reports_every_key_and_tracks(tmp_path):
     assert math.isfinite(report["rotation_median_deg"]) and report["rotation_median_deg"] < 5.0
     assert report["kidnap"]["start_s"] >= 18.0
     assert (tmp_path / "ingest.toml").is_file() and (tmp_path / "filter.log").is_file()
+
+
+def test_live_run_the_scenario_cannot_give_is_refused_before_any_service_starts(tmp_path):
+    """A kidnapping after the end of the run is refused by the command itself, naming the value,
+    instead of by the ingest process after the services have started."""
+    command = [sys.executable, "-m", "cli.main", "eval", "tracking", "--map", "world", "--sequence", "world", "--live"]
+    command += ["--duration", "5", "--kidnap-at", "8", "--device", "cpu", "--json", "--logs", str(tmp_path)]
+    finished = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert finished.returncode != 0
+    assert "kidnap_at 8.0 s: expected a time inside the run (0, 5.0) s" in finished.stderr
+    assert not (tmp_path / "ingest.toml").exists()

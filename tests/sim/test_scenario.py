@@ -118,6 +118,18 @@ def test_capture_rate_must_be_a_multiple_of_the_odometry_rate(frame_rate: float)
         SequencePath(tiny_sequence(), speed=1.0, odom_rate=15.0, frame_rate=frame_rate)
 
 
+def test_image_rate_above_the_sequence_frame_rate_is_refused() -> None:
+    """Frames 0.2 s apart (the lego orbit at its nominal speed) give at most 5 images per second: 10 Hz
+    is refused rather than silently replayed at 5 Hz."""
+    frames = tiny_sequence(count=12)
+    step = float((frames.T_world_cam[1:, :3, 3] - frames.T_world_cam[:-1, :3, 3]).norm(dim=-1).mean())
+    path = SequencePath(frames, speed=step / 0.2, odom_rate=15.0)
+    assert path.frame_period == pytest.approx(0.2)
+    assert len(path.image_times(5.0, 15.0, 1.0)) == 6
+    with pytest.raises(LocnerfInputError, match="image rate 10.0 Hz above the sequence's 5 frames per second"):
+        path.image_times(10.0, 15.0, 1.0)
+
+
 def test_sequence_needs_two_frames() -> None:
     with pytest.raises(ValueError, match="1 frame"):
         SequencePath(tiny_sequence().subset([0]), speed=1.0, odom_rate=15.0)
