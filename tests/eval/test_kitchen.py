@@ -11,6 +11,7 @@ bound tighter than the live run's own timeout: the suite runs on a loaded 2-core
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -80,13 +81,18 @@ def test_map_eval_on_the_test_split_beats_a_black_image(tiny_kitchen_map: Path, 
     assert 0.0 < scores["ssim"] <= 1.0
 
 
-@pytest.mark.parametrize(("command", "config", "particles"), [("single-image", "kitchen_single_image.toml", 300), ("global", "kitchen_global.toml", 600)])
+@pytest.mark.parametrize(
+    ("command", "config", "particles"),
+    [("single-image", "kitchen_single_image.toml", 300), ("global", "kitchen_global.toml", 600), ("global", "kitchen_global_keyframes.toml", 600)],
+)
 def test_relocalization_on_test_frames_scores_every_trial(
-    command: str, config: str, particles: int, tiny_kitchen_map: Path, capsys: pytest.CaptureFixture[str]
+    command: str, config: str, particles: int, tiny_kitchen_map: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
     """Two seeded test-split views, 5 updates each, with the published configuration: every trial
     scored, finite and held out. Errors stay within the room (a few metres): the start protocols
-    put the start within ~0.2 m (single image) or in the 2 m cube (global) around the truth."""
+    put the start within ~0.2 m (single image) or in the 2 m cube (global) around the truth; with
+    ``keyframe_start`` each global trial's first image re-draws 90 % of its 600 particles around map keyframes."""
+    caplog.set_level(logging.INFO, logger="locnerf.filter.localizer")
     argv = ["eval", command, "--map", str(tiny_kitchen_map), "--data", str(KITCHEN), "--split", "test", "--downscale", DOWNSCALE, "--trials", "2"]
     report = run_cli(argv + ["--updates", "5", "--config", str(REPO_ROOT / "configs" / config), "--seed", "0", "--device", "cpu", "--json"], capsys)
     assert report["updates"] == 5 and report["particles"] == particles
@@ -101,6 +107,8 @@ def test_relocalization_on_test_frames_scores_every_trial(
         history = trial["history"]
         assert len(history["translation_error"]) == len(history["rays"]) == 6 and history["translation_error"][-1] == trial["translation_error"]
         assert history["rays"] == sorted(history["rays"]) and history["rays"][-1] == trial["rays"] > 0
+    seeded = [r.getMessage() for r in caplog.records if r.getMessage().startswith("keyframe start:")]
+    assert seeded == (["keyframe start: 540 of 600 particles re-drawn around 8 matching keyframes"] * 2 if "keyframes" in config else [])
 
 
 def tracking_argv(tiny_kitchen_map: Path, seconds: str) -> list[str]:
