@@ -29,10 +29,10 @@ of a wrong pose cannot be stretched into anything), vectorised over particles an
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import RenderRays
@@ -40,6 +40,16 @@ from locnerf.render.rays import rays_from_poses_and_pixels
 
 # Floor on the per-particle squared error, so that a perfect render gives a large finite weight.
 _MIN_SQUARED_ERROR = 1e-12
+
+
+def _check_gain_range(value: tuple[float, float] | None) -> tuple[float, float] | None:
+    if value is not None and not 0 < value[0] <= 1 <= value[1]:
+        raise ValueError(f"exposure_gain_range={value}: expected 0 < low <= 1 <= high")
+    return value
+
+
+ExposureGainRange = Annotated[tuple[float, float] | None, AfterValidator(_check_gain_range)]
+"""Bounds [low, high] of the exposure-invariant likelihood's fitted gain, 0 < low <= 1 <= high; None: off."""
 
 
 class MeasurementConfig(BaseModel):
@@ -63,21 +73,12 @@ class MeasurementConfig(BaseModel):
     )
     min_pixels: int = Field(16, ge=1, description="ray_budget: fewest pixels an update looks at, however many particles.")
 
-    exposure_gain_range: tuple[float, float] | None = Field(
+    exposure_gain_range: ExposureGainRange = Field(
         None,
         description="Exposure-invariant likelihood (module docstring): the per-particle, per-channel gain fitted to the"
         " observed pixels is clamped to [low, high] (e.g. (0.5, 2.0)); None compares renders as they are (the original)."
-        " Applied by the in-process localizer (eval single-image, global, tracking without --live); the live services'"
-        " update requests do not carry it.",
+        " The in-process localizer applies it, and the live filter sends it to the workers with each update request.",
     )
-
-    @model_validator(mode="after")
-    def _check_gain_range(self) -> MeasurementConfig:
-        if self.exposure_gain_range is not None:
-            low, high = self.exposure_gain_range
-            if not 0 < low <= 1 <= high:
-                raise ValueError(f"exposure_gain_range={self.exposure_gain_range}: expected 0 < low <= 1 <= high")
-        return self
 
     def pixels_for(self, particles: int) -> int:
         """M for an update of ``particles`` particles under the ray budget (see ``ray_budget``)."""

@@ -14,6 +14,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from locnerf.filter.annealing import AnnealingStage
+from locnerf.filter.measurement import ExposureGainRange
 from locnerf.render.camera import PinholeIntrinsics
 
 Matrix = list[list[float]]
@@ -182,6 +183,10 @@ class UpdateRequest(_Wire):
     observed_rgb: list[list[float]] = Field(description="(M, 3) observed colours in [0, 1].")
     intrinsics: PinholeIntrinsics = Field(description="The observing camera.")
     exponent: float = Field(4.0, gt=0, description="γ of the likelihood (M / SSE)^γ.")
+    exposure_gain_range: ExposureGainRange = Field(
+        None,
+        description="Exposure-invariant likelihood: bounds of the per-particle gain fitted to the observed pixels (measurement.exposure_gain_range); None: off.",
+    )
 
     @model_validator(mode="after")
     def _shapes(self) -> UpdateRequest:

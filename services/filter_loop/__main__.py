@@ -14,7 +14,6 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.config import PRESETS, load_config, preset
 from locnerf.devices import resolve_device
-from locnerf.errors import ConfigError
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import open_map
@@ -44,16 +43,8 @@ class FilterProcessConfig(BaseModel):
 
 
 def localizer_config(spec: str) -> LocalizerConfig:
-    """A preset name or the path of a localizer TOML file.
-
-    Raises:
-        ConfigError: for ``measurement.exposure_gain_range``, which update requests do not carry: the
-            workers would score without it, unlike the offline localizer with the same file.
-    """
-    settings = preset(spec) if spec in PRESETS else load_config(spec)
-    if settings.measurement.exposure_gain_range is not None:
-        raise ConfigError(f"{spec}: measurement.exposure_gain_range is offline only (update requests do not carry it); expected it unset for the services")
-    return settings
+    """A preset name or the path of a localizer TOML file."""
+    return preset(spec) if spec in PRESETS else load_config(spec)
 
 
 def build_loop(config: FilterProcessConfig) -> FilterLoop:

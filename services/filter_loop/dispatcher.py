@@ -130,9 +130,11 @@ class UpdateDispatcher:
         exponent: float,
         now: float,
         image: torch.Tensor | None = None,
+        exposure_gain_range: tuple[float, float] | None = None,
     ) -> list[AddressedRequest]:
         """Split ``snapshot`` over the live workers; pixels (M, 2), observed_rgb (M, 3); ``image``
-        (H, W, 3) is kept until the update completes (for kidnapping recovery).
+        (H, W, 3) is kept until the update completes (for kidnapping recovery); ``exposure_gain_range``
+        asks the workers for the exposure-invariant likelihood (None: off).
 
         Raises:
             RuntimeError: if :attr:`can_start` is false.
@@ -151,6 +153,7 @@ class UpdateDispatcher:
             "observed_rgb": observed_rgb.cpu().tolist(),
             "intrinsics": intrinsics,
             "exponent": exponent,
+            "exposure_gain_range": exposure_gain_range,
         }
         parts = torch.tensor_split(torch.arange(len(ids)), min(len(names), len(ids)))
         for index, (part, worker) in enumerate(zip(parts, names)):

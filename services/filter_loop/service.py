@@ -368,7 +368,7 @@ class FilterLoop:
         chosen = sample_pixels_of_image(image, measurement, localizer.generator, measurement.pixels_for(len(snapshot.ids)))
         colours = observed_colours(image, chosen)
         kept = image if localizer.keyframes is not None else None
-        return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept))
+        return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept, measurement.exposure_gain_range))
 
     def metric_particle_poses(self) -> torch.Tensor:
         """(N, 4, 4) float64 camera poses of the particles, metric, in the map's world frame (needs particles)."""

@@ -47,7 +47,13 @@ class NerfWorker:
             raise RequestError(f"request pixels: expected 1 or more (u, v) inside the {size.width}×{size.height} image")
         observed = torch.tensor(request.observed_rgb, dtype=torch.float32).reshape(-1, 3)
         log_likelihoods = particle_log_likelihoods(
-            poses.to(device), pixels.to(device), observed.to(device), request.intrinsics, self.map.render_rays, request.exponent
+            poses.to(device),
+            pixels.to(device),
+            observed.to(device),
+            request.intrinsics,
+            self.map.render_rays,
+            request.exponent,
+            exposure_gain_range=request.exposure_gain_range,
         )
         return UpdateResult(
             request_id=request.request_id,

@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from locnerf.config import preset
-from locnerf.errors import ConfigError
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import carry_estimate
 from locnerf.filter.localizer import Localizer, SearchRegion
@@ -514,10 +513,17 @@ def test_the_first_update_after_a_global_start_is_seeded_at_the_keyframes_and_si
     assert near_camera(torch.tensor(request.poses, dtype=torch.float64).reshape(-1, 4, 4)) > 0
 
 
-def test_the_services_refuse_the_offline_only_exposure_likelihood() -> None:
-    """Update requests do not carry measurement.exposure_gain_range, so a file that sets it would be
-    scored differently live than offline: the filter process refuses it, naming the file and the option."""
-    config_file = REPO_ROOT / "configs" / "kitchen_single_image.toml"
-    with pytest.raises(ConfigError, match=r"kitchen_single_image\.toml: measurement\.exposure_gain_range is offline only"):
-        localizer_config(str(config_file))
-    assert localizer_config("llff").measurement.exposure_gain_range is None
+def test_update_requests_carry_the_exposure_invariant_likelihood(world) -> None:
+    """A localizer file that sets ``measurement.exposure_gain_range`` (configs/kitchen_single_image.toml)
+    is scored the same way live: every shard of an update asks the workers for that range; without it, for none."""
+    settings = localizer_config(str(REPO_ROOT / "configs" / "kitchen_single_image.toml"))
+    assert settings.measurement.exposure_gain_range == (0.5, 2.0)
+    for measurement, expected in ((settings.measurement.model_dump(), (0.5, 2.0)), ({}, None)):
+        harness = Harness(world, localizer_config=preset("llff", measurement=measurement))
+        harness.add_worker("w1")
+        harness.add_worker("w2")
+        harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
+        harness.loop.predict_pending()
+        harness.collect(harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(torch.Generator().manual_seed(0)))))
+        harness.tick()
+        assert len(harness.requests) == 2 and all(request.exposure_gain_range == expected for _, request in harness.requests)

@@ -63,6 +63,21 @@ def test_worker_result_equals_the_measurement_model(world, generator):
     assert int(torch.tensor(result.log_likelihoods).argmax()) == 0  # the particle at the true pose wins
 
 
+def test_worker_applies_the_requested_exposure_invariant_likelihood(world, generator):
+    """A request with ``exposure_gain_range`` is scored as the in-process localizer scores it (the oracle:
+    the measurement model with the same range), which differs from the plain likelihood on a darkened image;
+    a range that excludes the identity gain is refused when the request is built."""
+    request, poses, pixels, colours = _request(world, generator)
+    darker = request.model_copy(update={"observed_rgb": (0.7 * colours).tolist(), "exposure_gain_range": (0.5, 2.0)})
+    result = NerfWorker(world, "w").handle(darker)
+    expected = particle_log_likelihoods(poses, pixels, 0.7 * colours, world.default_intrinsics, world.render_rays, exposure_gain_range=(0.5, 2.0))
+    plain = particle_log_likelihoods(poses, pixels, 0.7 * colours, world.default_intrinsics, world.render_rays)
+    torch.testing.assert_close(torch.tensor(result.log_likelihoods, dtype=torch.float64), expected)
+    assert not torch.allclose(expected, plain)
+    with pytest.raises(ValueError, match=r"exposure_gain_range=\(1.5, 2.0\): expected 0 < low <= 1 <= high"):
+        UpdateRequest.model_validate(request.model_dump() | {"exposure_gain_range": (1.5, 2.0)})
+
+
 def test_worker_rejects_pixels_outside_the_image_and_non_rigid_poses(world, generator):
     request, *_ = _request(world, generator, count=2)
     with pytest.raises(RequestError, match="inside the 160×120 image"):
