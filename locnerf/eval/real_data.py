@@ -17,7 +17,7 @@ from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
 from locnerf.eval.paper_logs import LoggedRun, LoggedTrial
 from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialConfig, TrialResult, run_trial
-from locnerf.field.protocol import RadianceMap
+from locnerf.field.protocol import RadianceMap, surface_renderer
 from locnerf.filter import Localizer
 from locnerf.geometry import rotation_error_deg, translation_error
 from locnerf.render.camera import PinholeIntrinsics
@@ -65,7 +65,15 @@ def run_views(views: list[View], radiance_map: RadianceMap, intrinsics: PinholeI
     """One trial per view seen by the camera ``intrinsics``; logged views start at the logged offset."""
     return [
         run_trial(
-            view.image.to(radiance_map.device), intrinsics, view.truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, config, view.offset
+            view.image.to(radiance_map.device),
+            intrinsics,
+            view.truth,
+            radiance_map.render_rays,
+            radiance_map.samples_per_ray,
+            localizer,
+            config,
+            view.offset,
+            surface_renderer(radiance_map),
         )
         for view in views
     ]

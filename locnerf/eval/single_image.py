@@ -26,7 +26,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
-from locnerf.field.protocol import RadianceMap
+from locnerf.field.protocol import RadianceMap, SurfaceRays, surface_renderer
 from locnerf.filter import Localizer
 from locnerf.filter.initialization import uniform
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
@@ -107,10 +107,12 @@ def run_trial(
     localizer: Localizer,
     config: TrialConfig,
     offset: torch.Tensor | None = None,
+    render_surface: SurfaceRays | None = None,
 ) -> TrialResult:
     """Localize one image whose true pose is ``truth`` (4, 4); the localizer is re-initialised.
 
     ``offset`` (3,) fixes the start's translation offset (logged starts); drawn when None.
+    ``render_surface`` lets a localizer with ``measurement.warp`` weigh a converged cloud by re-projection.
     """
     initialize_for_protocol(localizer, truth, config, localizer.generator, offset)
     truth = truth.double().cpu()
@@ -129,8 +131,7 @@ def run_trial(
     rays = 0
     for _ in range(config.updates):
         localizer.predict()
-        rays += localizer.particles.count * localizer.config.measurement.pixels
-        localizer.update(image, intrinsics, render_rays)
+        rays += localizer.update(image, intrinsics, render_rays, render_surface).rays
         estimate = localizer.estimate().pose
         record(estimate, rays, time.perf_counter() - started)
     result.seconds = time.perf_counter() - started
@@ -154,7 +155,14 @@ def run_trials(
     results = []
     for index, (truth, image) in enumerate(tqdm(views, total=total, desc=f"{config.protocol} trials", disable=not show_progress)):
         result = run_trial(
-            image.to(radiance_map.device), radiance_map.default_intrinsics, truth, radiance_map.render_rays, radiance_map.samples_per_ray, localizer, config
+            image.to(radiance_map.device),
+            radiance_map.default_intrinsics,
+            truth,
+            radiance_map.render_rays,
+            radiance_map.samples_per_ray,
+            localizer,
+            config,
+            render_surface=surface_renderer(radiance_map),
         )
         logger.info("trial %d: %.4f units, %.2f deg, %.1f s", index, result.translation_error, result.rotation_error_deg, result.seconds)
         results.append(result)

@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
 from locnerf.errors import LocnerfInputError
-from locnerf.field.protocol import RadianceMap
+from locnerf.field.protocol import RadianceMap, surface_renderer
 from locnerf.filter import Localizer, SearchRegion
 from locnerf.geometry import make_pose, relative_pose, rotation_error_deg, se3_exp, translation_error
 from locnerf.sim.scenario import TrackingScenario
@@ -130,7 +130,7 @@ def run_tracking(
             for repeat in range(updates_per_image):
                 if repeat > 0:
                     localizer.predict()
-                report = localizer.update(image, intrinsics, radiance_map.render_rays)
+                report = localizer.update(image, intrinsics, radiance_map.render_rays, surface_renderer(radiance_map))
                 updates.append(tick)
                 if report.injected:
                     logger.info("t = %.2f s: %d recovery particles injected", float(scenario.stamps[tick]), report.injected)

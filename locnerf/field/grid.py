@@ -345,15 +345,14 @@ class GridField(torch.nn.Module):
         values[:, 1:4].sigmoid_()
         return self.optical_depth(values[:, 0]) * self.config.render_step_factor, values[:, 1:]
 
-    @torch.no_grad()
-    def render(self, origins: torch.Tensor, directions: torch.Tensor, view_directions: torch.Tensor) -> torch.Tensor:
-        """Colours of rays without gradients: (R, 3) each in -> rgb (R, 3) in [0, 1].
+    def _shade_with_position(self, position: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """As :meth:`_shade`, with the vertex coordinates (P, 3) appended to the channels (so they composite too)."""
+        optical, channels = self._shade(position)
+        return optical, torch.cat((channels, position), dim=-1)
 
-        Samples the lattice t_entry + (k + ½)·δt through the occupied box, as :meth:`render_training`
-        does without jitter but with δt ``render_step_factor`` times longer (and σ·δ to match); empty
-        stretches are jumped over with the Chebyshev distance grid and rays stop once their
-        transmittance is spent (:func:`grid_march.march`).
-        """
+    def _march_rays(self, origins: torch.Tensor, directions: torch.Tensor, with_position: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Composited channels (R, 3 + F [+ 3 vertex coordinates]), log transmittance (R,) and the
+        field-to-vertex scale (3,) of rays (R, 3) x2: the sampling of :meth:`render`."""
         cells = torch.tensor([r - 1 for r in self._resolution], device=origins.device, dtype=origins.dtype)
         to_vertices = cells / (self.box[1] - self.box[0])
         t_entry, t_exit = ray_box_intersection(origins, directions, self.occupied_box)
@@ -367,13 +366,41 @@ class GridField(torch.nn.Module):
             step,
             counts,
             self._skip_table(),
-            self._shade,
-            3 + self.config.features,
+            self._shade_with_position if with_position else self._shade,
+            3 + self.config.features + (3 if with_position else 0),
             self.config.termination_transmittance,
         )
-        # Rays that met nothing are the background (or black): decode only the others.
-        colour = self.background.expand(len(origins), 3).clone() if self.has_background else torch.zeros_like(origins)
+        return composited, log_transmittance, to_vertices
+
+    def _final_colour(self, composited: torch.Tensor, log_transmittance: torch.Tensor, view_directions: torch.Tensor) -> torch.Tensor:
+        """rgb (R, 3) in [0, 1] from composited (R, 3 + F) channels; rays that met nothing are the background (or black)."""
+        colour = self.background.expand(len(composited), 3).clone() if self.has_background else composited.new_zeros(len(composited), 3)
         hit = (log_transmittance < 0).nonzero(as_tuple=True)[0]
         opacity = -torch.expm1(log_transmittance[hit])
         colour[hit] = self._ray_colour(composited[hit, :3], composited[hit, 3:], opacity, view_directions[hit])
         return colour.clamp(0.0, 1.0)
+
+    @torch.no_grad()
+    def render(self, origins: torch.Tensor, directions: torch.Tensor, view_directions: torch.Tensor) -> torch.Tensor:
+        """Colours of rays without gradients: (R, 3) each in -> rgb (R, 3) in [0, 1].
+
+        Samples the lattice t_entry + (k + ½)·δt through the occupied box, as :meth:`render_training`
+        does without jitter but with δt ``render_step_factor`` times longer (and σ·δ to match); empty
+        stretches are jumped over with the Chebyshev distance grid and rays stop once their
+        transmittance is spent (:func:`grid_march.march`).
+        """
+        composited, log_transmittance, _ = self._march_rays(origins, directions, with_position=False)
+        return self._final_colour(composited, log_transmittance, view_directions)
+
+    @torch.no_grad()
+    def render_surface(self, origins: torch.Tensor, directions: torch.Tensor, view_directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """What :meth:`render` gives, plus where each ray meets the scene: (R, 3) each in ->
+        rgb (R, 3), expected surface point (R, 3) in field space (``Σ w_k x_k / Σ w_k``; the ray's
+        origin where it met nothing) and opacity ``Σ w_k`` (R,)."""
+        composited, log_transmittance, to_vertices = self._march_rays(origins, directions, with_position=True)
+        colour = self._final_colour(composited[:, :-3], log_transmittance, view_directions)
+        opacity = -torch.expm1(log_transmittance)
+        hit = (opacity > 0)[:, None]
+        vertex = composited[:, -3:] / torch.where(hit, opacity[:, None], torch.ones_like(opacity[:, None]))
+        points = torch.where(hit, vertex / to_vertices + self.box[0], origins)
+        return colour, points, opacity

@@ -39,6 +39,19 @@ class GridMap(StoredMap):
         field_origins, field_directions = self.info.field_rays(origins, directions)
         return self.field.render(field_origins, field_directions, directions)
 
+    def render_surface(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """rgb (R, 3), expected surface point (R, 3) and opacity (R,) of world-frame rays (R, 3) x2
+        (:meth:`GridField.render_surface`); metric maps only, as the field's space is then the map frame.
+
+        Raises:
+            ValueError: for an NDC map, whose field points are not map-frame points.
+        """
+        if self.info.normalization.ndc:
+            raise ValueError("render_surface: the map is an NDC (forward-facing) map, whose field space is not the map frame; expected a metric map")
+        origins = origins.to(self.device, torch.float32)
+        directions = directions.to(self.device, torch.float32)
+        return self.field.render_surface(origins, directions, directions)
+
     def state(self) -> dict[str, Any]:
         """Weights and shape for the map file."""
         return {

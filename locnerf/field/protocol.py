@@ -13,6 +13,7 @@ translation block changes, by the scale squared.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -102,3 +103,17 @@ class RadianceMap(Protocol):
 
     def render_rays(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         """Colours of rays: origins (R, 3), directions (R, 3), map frame -> rgb (R, 3) in [0, 1]."""
+
+
+SurfaceRays = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
+"""Rays' colours and where they meet the scene: origins (R, 3), directions (R, 3), map frame ->
+rgb (R, 3), expected surface point (R, 3) and opacity (R,) in [0, 1]."""
+
+
+def surface_renderer(radiance_map: RadianceMap) -> SurfaceRays | None:
+    """The map's ``render_surface`` when it can place what it renders in the map frame (grid maps
+    that are not NDC, the procedural world); None for the others (NDC maps, the nerf-pytorch MLP)."""
+    render_surface = getattr(radiance_map, "render_surface", None)
+    if render_surface is None or radiance_map.normalization.ndc:
+        return None
+    return render_surface

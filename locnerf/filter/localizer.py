@@ -9,6 +9,7 @@ counted. The localizer is used from one thread only.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
 import math
@@ -18,6 +19,7 @@ from dataclasses import dataclass
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from locnerf.field.protocol import SurfaceRays
 from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
 from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
@@ -36,6 +38,7 @@ from locnerf.filter.motion import MotionNoiseConfig, PivotNoise, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
+from locnerf.filter.warp import render_reference, warp_log_likelihoods, warp_reference_pose
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -129,6 +132,8 @@ class MergeReport:
     particle_count: int
     stage: AnnealingStage
     injected: int = 0
+    rays: int = 0
+    """Rays rendered for the update (set by :meth:`Localizer.update`; 0 for merged results of others)."""
 
 
 class Localizer:
@@ -395,9 +400,11 @@ class Localizer:
         return injected
 
     # ----------------------------------------------------------------- synchronous use
-    def update(self, image: torch.Tensor, intrinsics: PinholeIntrinsics, render_rays: RenderRays) -> MergeReport:
+    def update(self, image: torch.Tensor, intrinsics: PinholeIntrinsics, render_rays: RenderRays, render_surface: SurfaceRays | None = None) -> MergeReport:
         """One complete update on an image (H, W, 3) in [0, 1]: the keyframe start when one is
-        pending, snapshot, render (``measurement.pixels_for`` the particle count), merge."""
+        pending, snapshot, render (``measurement.pixels_for`` the particle count, or by re-projection
+        of one reference render when ``measurement.warp`` is set and the cloud is tight: ``render_surface``
+        is then needed, see :mod:`locnerf.filter.warp`), merge."""
         if image.ndim != 3 or image.shape[-1] != 3:
             raise ValueError(f"image: expected shape (H, W, 3), got {tuple(image.shape)}")
         if (image.shape[0], image.shape[1]) != (intrinsics.height, intrinsics.width):
@@ -405,19 +412,36 @@ class Localizer:
         self.seed_from_image(image, intrinsics)
         snap = self.snapshot()
         config = self.config.measurement
-        pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
-        colours = observed_colours(image, pixels)
-        log_likelihoods = particle_log_likelihoods(
-            snap.poses,
-            pixels.to(self.device),
-            colours.to(self.device),
-            intrinsics,
-            render_rays,
-            config.exponent,
-            config.ray_chunk,
-            config.exposure_gain_range,
-        )
-        return self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics))
+        reference_pose = self.warp_reference(snap)
+        if reference_pose is not None:
+            if render_surface is None:
+                raise ValueError("measurement.warp is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave warp unset for it")
+            reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator)
+            log_likelihoods = warp_log_likelihoods(snap.poses, reference, image.to(self.device), intrinsics, config.exponent, config.exposure_gain_range)
+            rays = reference.rays
+        else:
+            pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
+            log_likelihoods = particle_log_likelihoods(
+                snap.poses,
+                pixels.to(self.device),
+                observed_colours(image, pixels).to(self.device),
+                intrinsics,
+                render_rays,
+                config.exponent,
+                config.ray_chunk,
+                config.exposure_gain_range,
+            )
+            rays = len(pixels) * snap.poses.shape[0]
+        report = self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics))
+        return dataclasses.replace(report, rays=rays)
+
+    def warp_reference(self, snap: UpdateSnapshot) -> torch.Tensor | None:
+        """The reference pose (4, 4) float64 of a re-projection update of ``snap`` (its weighted mean),
+        or None: ``measurement.warp`` unset or the cloud too spread (:func:`warp_reference_pose`)."""
+        warp = self.config.measurement.warp
+        if warp is None:
+            return None
+        return warp_reference_pose(snap.poses, self._require_particles().weights, warp)
 
     def keyframe_candidates(self, image: torch.Tensor, intrinsics: PinholeIntrinsics) -> KeyframeCandidates | None:
         """The keyframes most like ``image`` (H, W, 3) seen with ``intrinsics``, when recovery draws

@@ -52,6 +52,31 @@ ExposureGainRange = Annotated[tuple[float, float] | None, AfterValidator(_check_
 """Bounds [low, high] of the exposure-invariant likelihood's fitted gain, 0 < low <= 1 <= high; None: off."""
 
 
+class WarpConfig(BaseModel):
+    """When and how a converged cloud is weighed by re-projection (:mod:`locnerf.filter.warp`)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    max_spread: float = Field(gt=0, description="Warp only while the largest per-axis weighted std of particle positions is at most this (map units).")
+    max_rotation_spread_deg: float = Field(5.0, gt=0, description="... and the largest rotation std (degrees) of the cloud is at most this.")
+    pixels: int = Field(512, ge=1, description="M: reference pixels re-projected into every particle's view.")
+    stride: int = Field(
+        2, ge=1, description="The reference view is rendered at every stride-th pixel (in both directions); the M are drawn from that render by its gradient."
+    )
+    occlusion_margin: float = Field(
+        0.05,
+        ge=0,
+        description="A reference pixel with a neighbour (within occlusion_pixels) closer by more than this fraction of its depth is on the far side of"
+        " an edge, where a nearby view sees the occluder instead: it is not drawn.",
+    )
+    occlusion_pixels: int = Field(
+        4, ge=0, description="Neighbourhood of that test, image pixels (the parallax a converged cloud's spread can cause between near and far surfaces)."
+    )
+    min_opacity: float = Field(
+        0.5, ge=0, le=1, description="A pixel whose ray is less opaque than this is a direction at infinity (background), not a surface point."
+    )
+
+
 class MeasurementConfig(BaseModel):
     """Photometric likelihood of a particle given sampled pixels."""
 
@@ -78,6 +103,12 @@ class MeasurementConfig(BaseModel):
         description="Exposure-invariant likelihood (module docstring): the per-particle, per-channel gain fitted to the"
         " observed pixels is clamped to [low, high] (e.g. (0.5, 2.0)); None compares renders as they are (the original)."
         " The in-process localizer applies it, and the live filter sends it to the workers with each update request.",
+    )
+
+    warp: WarpConfig | None = Field(
+        None,
+        description="Weigh a converged cloud by re-projecting one reference render into every particle's view (locnerf.filter.warp)"
+        " instead of rendering from every particle; None: always render (the original).",
     )
 
     def pixels_for(self, particles: int) -> int:
@@ -137,28 +168,39 @@ def _dilate_rows(values: torch.Tensor) -> torch.Tensor:
     return dilated
 
 
-def sample_pixels_of_image(image: torch.Tensor, config: MeasurementConfig, generator: torch.Generator, count: int | None = None) -> torch.Tensor:
+def sample_pixels_of_image(
+    image: torch.Tensor, config: MeasurementConfig, generator: torch.Generator, count: int | None = None, eligible: torch.Tensor | None = None
+) -> torch.Tensor:
     """``count`` (default ``config.pixels``) distinct pixels of an observed image (H, W, 3), drawn as ``config.sampling`` says.
 
     The gradient-weighted share is a weighted draw without replacement by exponential keys
     (Efraimidis–Spirakis: the k smallest of ``E_i / w_i``, ``E_i ~ Exp(1)``), the rest the k
     smallest of uniform keys among the pixels not chosen: two top-k passes over the image.
+    ``eligible`` (H·W,) bool, row-major, restricts both draws to some pixels (all when None); the
+    count is then at most the number of eligible pixels.
 
     Returns:
         (M, 2) float32 as (u, v) = (column, row).
     """
     height, width = int(image.shape[0]), int(image.shape[1])
     count = config.pixels if count is None else count
-    if config.sampling == "uniform":
-        return sample_pixels(height, width, count, generator)
+    if eligible is None:
+        if config.sampling == "uniform":
+            return sample_pixels(height, width, count, generator)
+        eligible = torch.ones(height * width, dtype=torch.bool)
     _check_pixel_count(height, width, count)
-    weights = gradient_weights(image.cpu()).double()
-    by_gradient = min(int(round(config.gradient_share * count)), int((weights > 0).sum()))
-    exponential_keys = torch.empty_like(weights).exponential_(generator=generator) / weights  # +inf where the weight is 0
-    chosen = torch.topk(exponential_keys, by_gradient, largest=False, sorted=False).indices
-    uniform_keys = torch.rand(weights.shape, dtype=torch.float64, generator=generator)
-    uniform_keys[chosen] = 2.0
-    others = torch.topk(uniform_keys, count - by_gradient, largest=False, sorted=False).indices
+    eligible = eligible.cpu()
+    count = min(count, int(eligible.sum()))
+    chosen = torch.zeros(0, dtype=torch.int64)
+    if config.sampling == "gradient":
+        weights = gradient_weights(image.cpu()).double() * eligible
+        by_gradient = min(int(round(config.gradient_share * count)), int((weights > 0).sum()))
+        exponential_keys = torch.empty_like(weights).exponential_(generator=generator) / weights  # +inf where the weight is 0
+        chosen = torch.topk(exponential_keys, by_gradient, largest=False, sorted=False).indices
+    uniform_keys = torch.rand(height * width, dtype=torch.float64, generator=generator)
+    uniform_keys[~eligible] = torch.inf
+    uniform_keys[chosen] = torch.inf
+    others = torch.topk(uniform_keys, count - len(chosen), largest=False, sorted=False).indices
     return _pixel_coordinates(torch.cat((chosen, others)), width)
 
 
@@ -185,20 +227,35 @@ def exposure_compensated_residuals(rendered: torch.Tensor, observed: torch.Tenso
     and ``b = mean(o) − g·mean(r)``, the optimum of the squared error for that g.
 
     Args:
-        rendered: (N, M, 3) rendered colours of N particles.
-        observed: (M, 3) observed colours.
+        rendered: (N, M, 3) rendered colours of N particles, or (M, 3) shared by all.
+        observed: (M, 3) observed colours, or (N, M, 3) one set per particle.
         gain_range: (low, high) bounds of the gain.
     Returns:
         (N, M, 3) residuals, same dtype as ``rendered``.
     """
     low, high = gain_range
-    rendered_centred = rendered - rendered.mean(dim=1, keepdim=True)
-    observed_centred = observed - observed.mean(dim=0, keepdim=True)
-    variance = (rendered_centred * rendered_centred).sum(dim=1)
-    covariance = (rendered_centred * observed_centred[None]).sum(dim=1)
+    rendered_centred = rendered - rendered.mean(dim=-2, keepdim=True)
+    observed_centred = observed - observed.mean(dim=-2, keepdim=True)
+    variance = (rendered_centred * rendered_centred).sum(dim=-2)
+    covariance = (rendered_centred * observed_centred).sum(dim=-2)
     flat = variance <= 1e-12
     gain = torch.where(flat, torch.ones_like(variance), covariance / torch.where(flat, torch.ones_like(variance), variance)).clamp(low, high)
-    return observed_centred[None] - gain[:, None, :] * rendered_centred
+    return observed_centred - gain[..., None, :] * rendered_centred
+
+
+def photometric_log_likelihoods(
+    rendered: torch.Tensor, observed: torch.Tensor, exponent: float, exposure_gain_range: tuple[float, float] | None = None
+) -> torch.Tensor:
+    """Eq. 5 in log space from colours: rendered and observed, each (N, M, 3) or (M, 3) shared
+    (at least one of them per particle) -> (N,) float64; ``exposure_gain_range`` as in
+    :func:`particle_log_likelihoods`."""
+    count = rendered.shape[-2]
+    observed = observed.to(rendered.device, rendered.dtype)
+    if exposure_gain_range is None:
+        residual = rendered - observed
+    else:
+        residual = exposure_compensated_residuals(rendered, observed, exposure_gain_range)
+    return log_likelihood_from_errors((residual * residual).sum(dim=(-2, -1)), count, exponent)
 
 
 def particle_log_likelihoods(
@@ -233,10 +290,4 @@ def particle_log_likelihoods(
     flat_origins, flat_dirs = origins.reshape(-1, 3), directions.reshape(-1, 3)
     with torch.no_grad():
         rendered = torch.cat([render_rays(flat_origins[i : i + ray_chunk], flat_dirs[i : i + ray_chunk]) for i in range(0, len(flat_origins), ray_chunk)])
-    rendered = rendered.reshape(poses.shape[0], count, 3)
-    observed = observed_rgb.to(rendered.device, rendered.dtype)
-    if exposure_gain_range is None:
-        residual = rendered - observed
-    else:
-        residual = exposure_compensated_residuals(rendered, observed, exposure_gain_range)
-    return log_likelihood_from_errors((residual * residual).sum(dim=(1, 2)), count, exponent)
+    return photometric_log_likelihoods(rendered.reshape(poses.shape[0], count, 3), observed_rgb, exponent, exposure_gain_range)

@@ -117,6 +117,10 @@ class ProceduralWorld:
 
     def render_rays(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         """Exact colours of rays (R, 3) + (R, 3) -> (R, 3) in [0, 1]."""
+        return self.render_surface(origins, directions)[0]
+
+    def render_surface(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Exact colours (R, 3), surface points (R, 3) (the origin on a miss) and opacity (R,) (1 on a hit, 0 on a miss) of rays (R, 3) x2."""
         if origins.shape != directions.shape or origins.ndim != 2 or origins.shape[-1] != 3:
             raise ValueError(f"rays: expected origins and directions of shape (R, 3), got {tuple(origins.shape)} and {tuple(directions.shape)}")
         t, surface = self.cast(origins, directions)
@@ -124,7 +128,7 @@ class ProceduralWorld:
         points = origins + torch.where(hit, t, torch.zeros_like(t))[:, None] * directions
         colours = self.texture.colour(points, surface)
         background = torch.tensor(self.config.background, dtype=origins.dtype, device=origins.device)
-        return torch.where(hit[:, None], colours, background)
+        return torch.where(hit[:, None], colours, background), points, hit.to(origins.dtype)
 
     # ------------------------------------------------------------------ conveniences
     def render_image(self, T_world_cam: torch.Tensor, intrinsics: PinholeIntrinsics | None = None) -> torch.Tensor:
