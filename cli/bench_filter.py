@@ -4,6 +4,10 @@ Targets (all at ``--particles`` N and ``--pixels`` M):
 
 * ``likelihood``: the worker's measurement step on a map (``--map world`` by default): rays for
   N poses × M pixels, render, log-likelihoods;
+* ``likelihood_converged``: the same for N poses within 1 cm and 0.6° of one view of the map (its
+  first reference pose, or a sampled world camera), as a converged cloud renders;
+* ``likelihood_warp``: those N poses weighed by re-projection (:mod:`locnerf.filter.warp`): the
+  reference view rendered at every ``--warp-stride``-th pixel, M of its pixels warped into every pose;
 * ``predict``: eq. 4 for N particles (odometry increment and tangent noise);
 * ``resample_multinomial`` / ``resample_systematic``: N indices from N weights;
 * ``rotation_mean``: weighted geodesic L2 mean of N rotations;
@@ -29,17 +33,21 @@ import torch
 from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
+from locnerf.field.protocol import RadianceMap, surface_renderer
+from locnerf.field.stored_map import StoredMap
 from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.estimate import estimate_from_particles
-from locnerf.filter.measurement import particle_log_likelihoods, sample_pixels
+from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels, sample_pixels_of_image
 from locnerf.filter.motion import propagate_poses
 from locnerf.filter.particles import ParticleSet
 from locnerf.filter.resampling import multinomial_resample, systematic_resample
+from locnerf.filter.warp import render_reference, warp_log_likelihoods
 from locnerf.geometry import se3_exp
 from locnerf.geometry.averaging import geodesic_rotation_mean
 from locnerf.maps.source import open_map
 from locnerf.messages.codec import decode, decode_image, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, UpdateRequest, UpdateResult
+from locnerf.render.image import render_views
 
 
 def add_target(targets: argparse._SubParsersAction) -> None:
@@ -52,6 +60,7 @@ def add_target(targets: argparse._SubParsersAction) -> None:
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda (likelihood and prediction)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the services use 1)")
     parser.add_argument("--targets", help="comma-separated subset of the targets (default: all)")
+    parser.add_argument("--warp-stride", type=int, default=2, help="likelihood_warp: the reference view's pixel stride")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     parser.set_defaults(func=run)
@@ -70,7 +79,36 @@ def time_calls(function: Callable[[], object], repeats: int, device: torch.devic
     return seconds
 
 
-def build_targets(particles: int, pixels: int, map_spec: str, device: torch.device, generator: torch.Generator) -> dict[str, Callable[[], object]]:
+def converged_targets(
+    radiance_map: RadianceMap, particles: int, pixels: int, stride: int, device: torch.device, generator: torch.Generator
+) -> dict[str, Callable[[], object]]:
+    """``likelihood_converged`` and ``likelihood_warp``: N poses around one view of the map, its image rendered once here."""
+    intrinsics = radiance_map.default_intrinsics
+    if isinstance(radiance_map, StoredMap):
+        view = radiance_map.reference_poses()[0].double()
+    else:
+        view = radiance_map.sample_camera_pose(generator).double()
+    view = view.to(device)
+    sigma = torch.tensor([0.01] * 3 + [0.01] * 3, dtype=torch.float64, device=device)
+    poses = (view[None] @ se3_exp(torch.randn(particles, 6, dtype=torch.float64, generator=generator).to(device) * sigma)).float()
+    image = render_views(radiance_map.render_rays, view[None].float(), intrinsics)[0]
+    measurement = MeasurementConfig(pixels=pixels, warp=WarpConfig(max_spread=1.0, pixels=pixels, stride=stride))
+    pixel_uv = sample_pixels_of_image(image, measurement, generator).to(device)
+    observed = observed_colours(image, pixel_uv)
+    render_surface = surface_renderer(radiance_map)
+    targets: dict[str, Callable[[], object]] = {
+        "likelihood_converged": lambda: particle_log_likelihoods(poses, pixel_uv, observed, intrinsics, radiance_map.render_rays),
+    }
+    if render_surface is not None:
+        targets["likelihood_warp"] = lambda: warp_log_likelihoods(
+            poses, render_reference(render_surface, view.cpu(), intrinsics, measurement, generator), image, intrinsics
+        )
+    return targets
+
+
+def build_targets(
+    particles: int, pixels: int, map_spec: str, device: torch.device, generator: torch.Generator, warp_stride: int = 2
+) -> dict[str, Callable[[], object]]:
     """Every target as a no-argument callable over inputs built here once."""
     radiance_map = open_map(map_spec, device)
     intrinsics = radiance_map.default_intrinsics
@@ -113,6 +151,7 @@ def build_targets(particles: int, pixels: int, map_spec: str, device: torch.devi
     pixels_on_device, observed_on_device = pixel_uv.to(device), observed.to(device)
     return {
         "likelihood": lambda: particle_log_likelihoods(float_poses, pixels_on_device, observed_on_device, intrinsics, radiance_map.render_rays),
+        **converged_targets(radiance_map, particles, pixels, warp_stride, device, generator),
         "predict": lambda: propagate_poses(poses_on_device, increment, sigma, generator),
         "resample_multinomial": lambda: multinomial_resample(weights, particles, generator),
         "resample_systematic": lambda: systematic_resample(weights, particles, generator),
@@ -128,13 +167,19 @@ def build_targets(particles: int, pixels: int, map_spec: str, device: torch.devi
 
 
 def run(args: argparse.Namespace) -> int:
-    for name, value in (("--particles", args.particles), ("--pixels", args.pixels), ("--repeats", args.repeats), ("--threads", args.threads)):
+    for name, value in (
+        ("--particles", args.particles),
+        ("--pixels", args.pixels),
+        ("--repeats", args.repeats),
+        ("--threads", args.threads),
+        ("--warp-stride", args.warp_stride),
+    ):
         if value < 1:
             raise LocnerfInputError(f"{name} {value}: expected at least 1")
     torch.set_num_threads(args.threads)
     device = resolve_device(args.device)
     generator = torch.Generator().manual_seed(args.seed)
-    targets = build_targets(args.particles, args.pixels, args.map, device, generator)
+    targets = build_targets(args.particles, args.pixels, args.map, device, generator, args.warp_stride)
     chosen = args.targets.split(",") if args.targets else list(targets)
     unknown = sorted(set(chosen) - set(targets))
     if unknown:

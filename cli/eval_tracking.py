@@ -59,7 +59,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--yaw-drift", type=float, default=0.2, help="odometry yaw drift, degrees per second")
     parser.add_argument("--noise", type=float, default=2e-3, help="odometry white translation noise per message, metres per axis")
     parser.add_argument("--rotation-noise", type=float, default=0.057, help="odometry white rotation noise per message, degrees per axis")
-    parser.add_argument("--updates-per-image", type=int, default=1, help="updates on each image (noise-only prediction between them)")
+    parser.add_argument(
+        "--updates-per-image",
+        type=int,
+        default=1,
+        help="updates on each image (noise-only prediction between them; --live: repeats while no newer image has come, each after the last merged)",
+    )
     parser.add_argument("--init", choices=("global", "gaussian"), default="global", help="start: the paper's global cube, or a Gaussian around the truth")
     parser.add_argument("--kidnap-at", type=float, default=None, help="seconds: the camera jumps half a loop ahead, unseen by the odometry")
     parser.add_argument("--no-recovery", action="store_true", help="turn kidnapping recovery off in the chosen configuration")
@@ -139,10 +144,8 @@ def run(args: argparse.Namespace) -> int:
         ScenarioConfig, {"duration": args.duration, "image_rate": image_rate, "vio": vio_config(args), "kidnap_at": args.kidnap_at, "seed": args.seed}
     )
     if args.live:
-        if args.background != "white" or args.updates_per_image != 1 or args.init != "global" or args.no_recovery or args.plots:
-            raise LocnerfInputError(
-                "--live: --background white, --updates-per-image 1, --init global, no --no-recovery and no --plots (the services do not do the others)"
-            )
+        if args.background != "white" or args.init != "global" or args.no_recovery or args.plots:
+            raise LocnerfInputError("--live: --background white, --init global, no --no-recovery and no --plots (the services do not do the others)")
         path = camera_path(args, open_map(args.map, torch.device("cpu")))
         check_timeline(path, scenario_config)
         sensor_seconds = args.duration if args.duration is not None else path.duration

@@ -29,6 +29,7 @@ from locnerf.messages import keys
 from locnerf.messages.codec import decode
 from locnerf.messages.schemas import Odometry, PoseEstimate, PoseStamped, UpdateResult
 from services.filter_loop.__main__ import FilterProcessConfig
+from services.filter_loop.service import FilterLoopConfig
 from services.local_hub import LocalHub
 from services.nerf_worker.__main__ import WorkerConfig
 from services.sensor_ingest.__main__ import IngestConfig
@@ -66,7 +67,8 @@ def service_configs(args: argparse.Namespace, image_rate: float, vio: dict[str, 
     localizer = str(Path(args.config).resolve()) if args.config is not None else args.preset
     common = {"robot_id": ROBOT_ID, "seed": args.seed}
     ingest = IngestConfig(source="scenario", prefetch_events=events, prefill=True, speed=1.0, scenario=scenario_settings(args, image_rate, vio), **common)
-    filter_config = FilterProcessConfig(map=map_spec, device=args.device, localizer=localizer, **common)
+    loop = FilterLoopConfig(updates_per_image=args.updates_per_image)
+    filter_config = FilterProcessConfig(map=map_spec, device=args.device, localizer=localizer, loop=loop, **common)
     worker = WorkerConfig(map=map_spec, device=args.device, robot_id=ROBOT_ID)
     return ServiceConfigs(ingest, filter_config, worker, args.workers)
 

@@ -13,7 +13,6 @@ translation block changes, by the scale squared.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -21,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.geometry.se3 import pose_inverse
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import SurfaceRays
 
 
 def _translation_scaled(poses: torch.Tensor, factor: float) -> torch.Tensor:
@@ -103,11 +103,6 @@ class RadianceMap(Protocol):
 
     def render_rays(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         """Colours of rays: origins (R, 3), directions (R, 3), map frame -> rgb (R, 3) in [0, 1]."""
-
-
-SurfaceRays = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
-"""Rays' colours and where they meet the scene: origins (R, 3), directions (R, 3), map frame ->
-rgb (R, 3), expected surface point (R, 3) and opacity (R,) in [0, 1]."""
 
 
 def surface_renderer(radiance_map: RadianceMap) -> SurfaceRays | None:

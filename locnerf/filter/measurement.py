@@ -25,6 +25,9 @@ brightness. ``exposure_gain_range`` (off by default) compares each particle's re
 best per-channel gain and bias for that particle: ``min over g, b of Σ_j (I_j − g·C_j − b)²``,
 closed-form least squares over the M pixels (the gain clamped to the range, so that a flat render
 of a wrong pose cannot be stretched into anything), vectorised over particles and channels.
+
+Converged clouds: with ``warp`` set, a cloud tighter than its spreads is weighed by re-projecting one
+reference render into every particle's view instead (:mod:`locnerf.filter.warp`).
 """
 
 from __future__ import annotations

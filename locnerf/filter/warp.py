@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from locnerf.field.protocol import SurfaceRays
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, photometric_log_likelihoods, sample_pixels_of_image
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import SurfaceRays
 from locnerf.render.rays import rays_from_poses_and_pixels
 
 # Camera-frame depth (OpenGL: -z) below which a point is treated as behind the camera.

@@ -14,7 +14,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from locnerf.filter.annealing import AnnealingStage
-from locnerf.filter.measurement import ExposureGainRange
+from locnerf.filter.measurement import ExposureGainRange, MeasurementConfig
 from locnerf.render.camera import PinholeIntrinsics
 
 Matrix = list[list[float]]
@@ -170,6 +170,30 @@ class ServiceStatus(Stamped):
     counters: dict[str, int] = Field(description="Counts: messages handled, bad messages by kind (bad_<kind>, bad_messages), inbox drops.")
 
 
+class WarpRequest(_Wire):
+    """Weigh the shard by re-projection (:mod:`locnerf.filter.warp`) instead of rendering from every pose.
+
+    Every shard of an update carries the same reference pose, seed and image, so every worker draws
+    the same reference pixels and the shards' likelihoods compare."""
+
+    reference_pose: Matrix = Field(description="4×4 reference camera pose (the cloud's weighted mean), map units.")
+    seed: int = Field(ge=0, lt=2**63, description="Seed of the draw of the reference pixels.")
+    measurement: MeasurementConfig = Field(description="Pixel sampling and the warp settings (its `warp` must be set).")
+    image: bytes = Field(description="The observed image, H×W×3 uint8 RGB row-major (H, W of the request's intrinsics).")
+
+    @field_validator("reference_pose")
+    @classmethod
+    def _pose(cls, value: Matrix) -> Matrix:
+        return _check_pose(value, "reference_pose")
+
+    @field_validator("measurement")
+    @classmethod
+    def _has_warp(cls, value: MeasurementConfig) -> MeasurementConfig:
+        if value.warp is None:
+            raise ValueError("measurement.warp is None: expected the warp settings of a re-projection update")
+        return value
+
+
 class UpdateRequest(_Wire):
     """One shard of an update: render ``pixels`` from every pose and compare with ``observed_rgb``."""
 
@@ -187,6 +211,7 @@ class UpdateRequest(_Wire):
         None,
         description="Exposure-invariant likelihood: bounds of the per-particle gain fitted to the observed pixels (measurement.exposure_gain_range); None: off.",
     )
+    warp: WarpRequest | None = Field(None, description="Re-projection instead of rendering; a worker whose map cannot place surfaces renders `pixels` instead.")
 
     @model_validator(mode="after")
     def _shapes(self) -> UpdateRequest:
@@ -194,6 +219,11 @@ class UpdateRequest(_Wire):
             raise ValueError(f"update request: expected poses (K, 16) for K={len(self.ids)} ids")
         if len(self.pixels) != len(self.observed_rgb) or any(len(p) != 2 for p in self.pixels) or any(len(c) != 3 for c in self.observed_rgb):
             raise ValueError("update request: expected pixels (M, 2) and observed_rgb (M, 3) of equal length")
+        expected = self.intrinsics.width * self.intrinsics.height * 3
+        if self.warp is not None and len(self.warp.image) != expected:
+            raise ValueError(
+                f"update request: warp image of {len(self.warp.image)} bytes, expected {expected} for {self.intrinsics.width}×{self.intrinsics.height}×3"
+            )
         return self
 
 

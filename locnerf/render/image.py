@@ -12,6 +12,10 @@ from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 RenderRays = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 """A ray-colour callable: origins (R, 3), directions (R, 3) -> rgb (R, 3) in [0, 1] (a field and its renderer)."""
 
+SurfaceRays = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
+"""Rays' colours and where they meet the scene: origins (R, 3), directions (R, 3), map frame ->
+rgb (R, 3), expected surface point (R, 3) and opacity (R,) in [0, 1]."""
+
 
 def render_image(
     render_rays: RenderRays,

@@ -81,6 +81,7 @@ def serve(loop: FilterLoop, bus: Bus, stop: threading.Event, ros2: Ros2Config | 
             handle.close()
         loop.close()
         logger.info("%s", driver.timings.summary())
+        logger.info("counters at exit: %s", loop.counters())
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -38,6 +38,7 @@ from locnerf.messages.schemas import (
     ParticleCloud,
     PoseEstimate,
     UpdateResult,
+    WarpRequest,
 )
 from services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
 from services.filter_loop.frames import FilterFrames
@@ -61,6 +62,12 @@ class FilterLoopConfig(BaseModel):
     update_timeout: float = Field(5.0, gt=0, description="An update not complete after this many seconds is abandoned.")
     max_in_flight: int = Field(2, ge=1, description="Updates in flight at once (2 keeps the workers busy while the filter merges).")
     max_image_age: float = Field(1.0, gt=0, description="Images older than the newest odometry by more than this are dropped, seconds.")
+    updates_per_image: int = Field(
+        1,
+        ge=1,
+        description="Updates on one image while no newer one has come: a repeat starts once the image's previous update has merged"
+        " (cheap re-projection updates leave the workers idle between images otherwise).",
+    )
     odometry_horizon: float = Field(5.0, gt=0, description="Seconds of odometry kept to carry particles to an image stamp.")
     odometry_resync: int = Field(
         3,
@@ -134,6 +141,7 @@ class FilterLoop:
         self.odometry_restarts = 0
         self._stepped_back: list[float] = []
         self._image: tuple[ImageHeader, np.ndarray] | None = None
+        self._image_uses = 0
         self._last_particles = self._last_status = -float("inf")
         self._start()
 
@@ -263,9 +271,10 @@ class FilterLoop:
             # No odometry places the particles at this stamp (odometry stopped, or the image's clock jumped ahead).
             self.bad.record("image_ahead", f"image stamp {header.stamp} is more than {self.config.max_image_age} s after the newest odometry ({latest})")
             return []
-        if self._image is not None:
+        if self._image is not None and self._image_uses == 0:
             self.images_replaced += 1
         self._image = (header, pixels)
+        self._image_uses = 0
         self.rates["image"].tick()
         return []
 
@@ -341,7 +350,8 @@ class FilterLoop:
         now = self.clock()
         self.dispatcher.expire(now)
         out: Outgoing = []
-        if self.running and self._image is not None and self.dispatcher.can_start:
+        repeat = self._image_uses > 0
+        if self.running and self._image is not None and self.dispatcher.can_start and not (repeat and self.dispatcher.pending):
             out += self._start_update(now)
         if self.running and now - self._last_particles >= 1.0 / self.config.particles_rate:
             self._last_particles = now
@@ -353,7 +363,9 @@ class FilterLoop:
 
     def _start_update(self, now: float) -> Outgoing:
         header, pixels = self._image
-        self._image = None
+        self._image_uses += 1
+        if self._image_uses >= self.config.updates_per_image:
+            self._image = None
         try:
             carry = self.history.carry_to(header.stamp)
         except ValueError as error:
@@ -368,7 +380,13 @@ class FilterLoop:
         chosen = sample_pixels_of_image(image, measurement, localizer.generator, measurement.pixels_for(len(snapshot.ids)))
         colours = observed_colours(image, chosen)
         kept = image if localizer.keyframes is not None else None
-        return self._requests(self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept, measurement.exposure_gain_range))
+        reference = localizer.warp_reference(snapshot)
+        warp = None
+        if reference is not None:
+            seed = int(torch.randint(2**62, (1,), generator=localizer.generator))
+            warp = WarpRequest(reference_pose=reference.tolist(), seed=seed, measurement=measurement, image=np.ascontiguousarray(pixels).tobytes())
+        addressed = self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept, measurement.exposure_gain_range, warp)
+        return self._requests(addressed)
 
     def metric_particle_poses(self) -> torch.Tensor:
         """(N, 4, 4) float64 camera poses of the particles, metric, in the map's world frame (needs particles)."""

@@ -15,6 +15,8 @@ def test_every_filter_target_prints_one_json_line(capsys):
     lines = [json.loads(line) for line in capsys.readouterr().out.strip().splitlines()]
     expected = {
         "likelihood",
+        "likelihood_converged",
+        "likelihood_warp",
         "predict",
         "resample_multinomial",
         "resample_systematic",

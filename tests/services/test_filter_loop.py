@@ -527,3 +527,55 @@ def test_update_requests_carry_the_exposure_invariant_likelihood(world) -> None:
         harness.collect(harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(torch.Generator().manual_seed(0)))))
         harness.tick()
         assert len(harness.requests) == 2 and all(request.exposure_gain_range == expected for _, request in harness.requests)
+
+
+def test_a_converged_cloud_is_weighed_by_reprojection_live(world) -> None:
+    """With ``measurement.warp``: a tight cloud's update asks every worker for the same re-projection
+    (reference pose, seed, image), and the answers merge like any other; a spread cloud renders."""
+    truth = world.sample_camera_pose(torch.Generator().manual_seed(0))
+    settings = preset("llff", measurement={"warp": {"max_spread": 0.05, "pixels": 64, "stride": 4}})
+    for spread, warped in ((1e-3, True), (0.3, False)):
+        harness = Harness(world, FilterLoopConfig(start="wait"), localizer_config=settings)
+        harness.add_worker("w1")
+        harness.add_worker("w2")
+        covariance = torch.diag(torch.tensor([1e-4] * 3 + [spread**2] * 3, dtype=torch.float64))
+        harness.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=truth.tolist(), covariance=covariance.tolist())))
+        harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
+        harness.loop.predict_pending()
+        harness.collect(harness.loop.handle_image(_image(world, 0.0, truth)))
+        harness.tick()
+        warps = [request.warp for _, request in harness.requests]
+        assert len(warps) == 2
+        if not warped:
+            assert warps == [None, None]
+            continue
+        assert warps[0] is not None and warps[0] == warps[1]
+        reference = torch.tensor(warps[0].reference_pose, dtype=torch.float64)
+        assert float(translation_error(reference, truth)) < 0.01
+        while harness.requests:
+            harness.answer(harness.requests.pop(0)[1])
+        assert harness.loop.localizer.counters["merged"] == 1
+
+
+def test_repeated_updates_on_one_image_wait_for_the_previous_merge(world) -> None:
+    """``updates_per_image`` 2: the image's second update starts only after its first has merged, none
+    after that, and a newer image starts afresh; with 1 (the default) an image is used once."""
+    truth = world.sample_camera_pose(torch.Generator().manual_seed(0))
+    for uses, expected in ((2, [1, 0, 1, 0, 1]), (1, [1, 0, 0, 0, 1])):
+        harness = Harness(world, FilterLoopConfig(start="wait", updates_per_image=uses), localizer_config=preset("llff"))
+        harness.add_worker("w1")
+        covariance = torch.diag(torch.tensor([1e-4] * 3 + [1e-4] * 3, dtype=torch.float64))
+        harness.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=truth.tolist(), covariance=covariance.tolist())))
+        harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
+        harness.loop.predict_pending()
+        started = []
+        for step in range(5):
+            if step in (0, 4):
+                harness.collect(harness.loop.handle_image(_image(world, 0.0, truth)))
+            before = len(harness.requests)
+            harness.tick()
+            started.append(len(harness.requests) - before)
+            if step >= 1:  # the first update stays in flight over the second tick
+                while harness.requests:
+                    harness.answer(harness.requests.pop(0)[1])
+        assert started == expected

@@ -13,10 +13,11 @@ import torch
 from locnerf.data.detect import read_dataset
 from locnerf.data.posed_images import PosedImages
 from locnerf.field.protocol import MapNormalization
-from locnerf.filter.measurement import observed_colours, particle_log_likelihoods, sample_pixels
+from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels
+from locnerf.filter.warp import render_reference, warp_log_likelihoods
 from locnerf.geometry.se3 import pose_inverse, se3_exp
-from locnerf.messages.codec import decode, decode_image
-from locnerf.messages.schemas import Odometry, UpdateRequest
+from locnerf.messages.codec import decode, decode_image, encode
+from locnerf.messages.schemas import Odometry, UpdateRequest, WarpRequest
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from locnerf.sim.sensors import VioConfig, simulate_odometry
@@ -207,3 +208,55 @@ def test_a_video_file_becomes_stamped_rgb_frames(tmp_path):
         list(camera_events(CameraSourceConfig(device=str(path), intrinsics=intrinsics.model_copy(update={"width": 64}))))
     with pytest.raises(ValueError, match="cannot be opened"):
         list(camera_events(CameraSourceConfig(device=str(tmp_path / "missing.avi"), intrinsics=intrinsics)))
+
+
+def _warp_request(world: ProceduralWorld, generator: torch.Generator) -> tuple[UpdateRequest, torch.Tensor, torch.Tensor, MeasurementConfig]:
+    """A re-projection request: 8 particles around a true pose, its image, a reference 1 cm off."""
+    truth = world.sample_camera_pose(generator)
+    poses = (truth[None] @ se3_exp(0.01 * torch.randn(8, 6, generator=generator, dtype=torch.float64))).float()
+    image = world.render_image(truth)
+    pixels = (image * 255).round().to(torch.uint8).numpy()
+    measurement = MeasurementConfig(pixels=16, warp=WarpConfig(max_spread=0.1, pixels=64, stride=4))
+    reference_pose = truth @ se3_exp(torch.tensor([[0.0, 0.0, 0.0, 0.01, 0.0, 0.0]], dtype=torch.float64))[0]
+    request, *_ = _request(world, generator, count=8)
+    request = request.model_copy(
+        update={
+            "poses": poses.reshape(8, 16).tolist(),
+            "warp": WarpRequest(reference_pose=reference_pose.tolist(), seed=7, measurement=measurement, image=pixels.tobytes()),
+        }
+    )
+    return request, poses, torch.from_numpy(pixels).float() / 255.0, measurement
+
+
+def test_worker_warps_as_the_in_process_localizer_does(world, generator):
+    """A re-projection request is scored as :func:`warp_log_likelihoods` scores it in process with the
+    same seed (so every shard of an update draws the same reference pixels); a map without surfaces
+    renders the request's pixels instead; a warp image of the wrong size is refused when decoded."""
+    request, poses, image, measurement = _warp_request(world, generator)
+    result = NerfWorker(world, "w").handle(request)
+    reference = render_reference(
+        world.render_surface,
+        torch.tensor(request.warp.reference_pose, dtype=torch.float64),
+        world.default_intrinsics,
+        measurement,
+        torch.Generator().manual_seed(7),
+    )
+    expected = warp_log_likelihoods(poses, reference, image, world.default_intrinsics)
+    torch.testing.assert_close(torch.tensor(result.log_likelihoods, dtype=torch.float64), expected)
+    assert NerfWorker(world, "again").handle(request).log_likelihoods == result.log_likelihoods
+    assert decode(encode(request), UpdateRequest) == request  # the image travels as msgpack bytes
+
+    class RenderOnly:  # the world without its surface renderer, as an MLP or NDC map
+        def __init__(self) -> None:
+            self.render_rays, self.device, self.normalization = world.render_rays, world.device, world.normalization
+
+    rendered = NerfWorker(RenderOnly(), "w").handle(request)
+    pixels, colours = torch.tensor(request.pixels), torch.tensor(request.observed_rgb)
+    torch.testing.assert_close(
+        torch.tensor(rendered.log_likelihoods, dtype=torch.float64),
+        particle_log_likelihoods(poses, pixels, colours, world.default_intrinsics, world.render_rays),
+    )
+    with pytest.raises(ValueError, match=r"warp image of 10 bytes, expected 57600 for 160×120×3"):
+        UpdateRequest.model_validate(request.model_dump() | {"warp": request.warp.model_dump() | {"image": bytes(10)}})
+    with pytest.raises(ValueError, match=r"measurement.warp is None"):
+        WarpRequest.model_validate(request.warp.model_dump() | {"measurement": {}})
