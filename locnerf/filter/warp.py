@@ -107,7 +107,7 @@ def render_reference(
     homogeneous = torch.where(
         surface,
         torch.cat((points[index], torch.ones_like(surface, dtype=points.dtype)), dim=-1),
-        torch.cat((directions[0, index].to(points.device, points.dtype), torch.zeros_like(surface, dtype=points.dtype)), dim=-1),
+        torch.cat((directions[0].to(points.device, points.dtype)[index], torch.zeros_like(surface, dtype=points.dtype)), dim=-1),
     )
     return WarpReference(colours[index].float(), homogeneous.float(), len(pixels))
 

@@ -204,3 +204,19 @@ def test_pixel_draw_keeps_to_the_eligible_pixels(generator: torch.Generator) -> 
         flat = (pixels[:, 1] * 12 + pixels[:, 0]).long()
         assert len(flat.unique()) == 20 and bool(eligible[flat].all())
         assert len(sample_pixels_of_image(image, config, generator, count=100, eligible=eligible)) == int(eligible.sum())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
+def test_cuda_warp_matches_the_cpu_warp(world: ProceduralWorld) -> None:
+    """Poses, map and image on CUDA (the reference pose stays a CPU float64, as the filter sends it):
+    the same reference pixels and likelihoods as on the CPU, within float32 rounding."""
+    truth = _true_pose(world)
+    image = world.render_image(truth.float(), CAMERA)
+    poses = _around(truth, 50, 0.01, 0.02, torch.Generator().manual_seed(2)).float()
+    measurement = MeasurementConfig(warp=WarpConfig(max_spread=0.1, pixels=128))
+    results = []
+    for device in ("cpu", "cuda"):
+        on_device = ProceduralWorld.default(device)
+        reference = render_reference(on_device.render_surface, truth, CAMERA, measurement, torch.Generator().manual_seed(3))
+        results.append(warp_log_likelihoods(poses.to(device), reference, image.to(device), CAMERA).cpu())
+    torch.testing.assert_close(results[0], results[1], atol=1e-3, rtol=1e-4)
