@@ -175,6 +175,7 @@ class Localizer:
         self._recovery = RecoveryMonitor(config.recovery)
         self._next_id = 0
         self._keyframe_start_pending = False
+        self._last_warped: bool | None = None
         self._start_up: tuple[float, float, float] = (0.0, 1.0, 0.0)
         self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0}
 
@@ -307,6 +308,7 @@ class Localizer:
         ids: torch.Tensor,
         log_likelihoods: torch.Tensor,
         find_candidates: CandidateSource | None = None,
+        warped: bool = False,
     ) -> MergeReport:
         """Merge an update computed on snapshot ``(epoch, generation)``.
 
@@ -315,6 +317,10 @@ class Localizer:
             log_likelihoods: (K,) log-likelihoods of those particles (−inf allowed; NaN counts as −inf).
             find_candidates: called, only when this merge injects recovery particles, for the
                 keyframes that match the update's image (e.g. ``lambda: localizer.keyframe_candidates(image, intrinsics)``).
+            warped: the likelihoods come from re-projection (:mod:`locnerf.filter.warp`), not from
+                renders. The two measure different pixels, so their levels differ: when the kind
+                changes, the recovery monitor forgets its averages instead of reading the step as a
+                kidnapping (or as a recovery).
         Returns:
             What happened (see :class:`MergeReport`).
         """
@@ -345,6 +351,9 @@ class Localizer:
         missing = torch.isnan(per_particle) | (ancestors == NO_ANCESTOR)
         per_particle[missing] = log_likelihoods[finite].median()
 
+        if warped != self._last_warped:
+            self._recovery.reset()
+            self._last_warped = warped
         combined = particles.log_weights.double().cpu() + per_particle
         particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
         plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
@@ -431,7 +440,8 @@ class Localizer:
                 config.exposure_gain_range,
             )
             rays = len(pixels) * snap.poses.shape[0]
-        report = self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics))
+        warped = reference_pose is not None
+        report = self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics), warped)
         return dataclasses.replace(report, rays=rays)
 
     def warp_reference(self, snap: UpdateSnapshot) -> torch.Tensor | None:

@@ -46,7 +46,7 @@ class _Update:
 @dataclass(frozen=True)
 class CompletedUpdate:
     """Joined results: ``ids`` (N,) and ``log_likelihoods`` (N,) of snapshot ``(epoch, generation)``,
-    with the update's ``image`` (H, W, 3) if one was kept and its camera."""
+    with the update's ``image`` (H, W, 3) if one was kept, its camera, and whether it was a re-projection."""
 
     epoch: int
     generation: int
@@ -55,6 +55,7 @@ class CompletedUpdate:
     latency: float
     image: torch.Tensor | None
     intrinsics: PinholeIntrinsics
+    warped: bool = False
 
 
 AddressedRequest = tuple[str, UpdateRequest]
@@ -199,6 +200,7 @@ class UpdateDispatcher:
             latency=now - update.started,
             image=update.image,
             intrinsics=update.shards[0].request.intrinsics,
+            warped=update.shards[0].request.warp is not None,
         )
 
     def expire(self, now: float) -> int:

@@ -105,7 +105,7 @@ class LoopStateMachine:
         find_candidates = None
         if completed.image is not None:
             find_candidates = partial(localizer.keyframe_candidates, completed.image, completed.intrinsics)
-        report = localizer.merge(completed.epoch, completed.generation, completed.ids, completed.log_likelihoods, find_candidates)
+        report = localizer.merge(completed.epoch, completed.generation, completed.ids, completed.log_likelihoods, find_candidates, completed.warped)
         if report.outcome is MergeOutcome.MERGED:
             self.state = LoopState.ESTIMATE_STALE
         return report

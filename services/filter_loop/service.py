@@ -298,6 +298,8 @@ class FilterLoop:
             self.rates["update"].tick()
             self.latencies.append(completed.latency)
         logger.debug("update %s: ESS %.1f, %d particles, stage %s", report.outcome, report.effective_sample_size, report.particle_count, report.stage)
+        if report.injected:
+            logger.info("odometry stamp %.2f s: %d recovery particles injected", self.history.latest_stamp or 0.0, report.injected)
         return []
 
     def handle_initial_pose(self, payload: bytes) -> Outgoing:

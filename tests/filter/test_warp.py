@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from locnerf.config import preset
-from locnerf.filter import Localizer
+from locnerf.filter import Localizer, SearchRegion
 from locnerf.filter.measurement import (
     MeasurementConfig,
     WarpConfig,
@@ -220,3 +220,18 @@ def test_cuda_warp_matches_the_cpu_warp(world: ProceduralWorld) -> None:
         reference = render_reference(on_device.render_surface, truth, CAMERA, measurement, torch.Generator().manual_seed(3))
         results.append(warp_log_likelihoods(poses.to(device), reference, image.to(device), CAMERA).cpu())
     torch.testing.assert_close(results[0], results[1], atol=1e-3, rtol=1e-4)
+
+
+def test_a_change_of_measurement_kind_is_not_read_as_a_kidnapping() -> None:
+    """Rendered and re-projected likelihoods measure different pixels, so their levels differ: a drop
+    of 30 nats that comes with a switch to re-projection leaves the recovery monitor quiet (it starts
+    its averages afresh), while the same drop within one kind injects recovery particles."""
+    config = preset("tracking", particles=100)
+    region = SearchRegion(low=(-1.0, -1.0, -1.0), high=(1.0, 1.0, 1.0))
+    for switch, expect_injection in ((True, False), (False, True)):
+        localizer = Localizer(config, torch.Generator().manual_seed(0), region=region)
+        localizer.initialize_gaussian(torch.eye(4, dtype=torch.float64), torch.diag(torch.tensor([1e-4] * 6, dtype=torch.float64)))
+        for level, warped in [(50.0, False)] * 5 + [(20.0, switch)]:
+            snap = localizer.snapshot()
+            report = localizer.merge(snap.epoch, snap.generation, snap.ids, torch.full((len(snap.ids),), level, dtype=torch.float64), warped=warped)
+        assert (report.injected > 0) == expect_injection
