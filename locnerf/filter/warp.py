@@ -2,16 +2,17 @@
 
 Once the particles cluster around one pose, rendering the same M pixels from each of N nearly equal
 poses costs N·M rays for N nearly equal images. Instead (as direct visual odometry compares a
-keyframe with a new image), the M pixels are rendered once from a reference pose x_ref, the
-cluster's weighted mean: each gives a colour c_j and the point X_j where its ray meets the map
-(its expected surface point; a ray that met nothing, or less than ``min_opacity`` of it, is a
-direction at infinity). A particle x_i is right when the observed image I shows c_j where X_j
+keyframe with a new image), the reference pose x_ref, the cluster's weighted mean, is rendered once
+at every ``stride``-th pixel, and M of those pixels are kept (drawn by that render's gradient, away
+from the far sides of depth edges): each gives a colour c_j and the point X_j where its ray meets
+the map (its expected surface point; a ray that met nothing, or less than ``min_opacity`` of it, is
+a direction at infinity). A particle x_i is right when the observed image I shows c_j where X_j
 projects from x_i, so its residuals are ``I(π(x_i⁻¹ X_j)) − c_j``, with I sampled bilinearly
 (sub-pixel positions count: a pose error of a fraction of a pixel changes the residual smoothly).
 The likelihood is eq. 5's, ``(M / SSE_i)^γ`` over these residuals (with the optional exposure fit).
 
-Cost: M rays plus N·M projections and bilinear lookups, instead of N·M rays, so a converged cloud
-can keep many particles and many pixels. What it leaves out: occlusions that differ between x_ref
+Cost: H·W / stride² rays plus N·M projections and bilinear lookups, instead of N·M rays, so a
+converged cloud can keep many particles and many pixels. What it leaves out: occlusions that differ between x_ref
 and x_i (a point hidden from x_i still counts), and the map's view dependence; both vanish as the
 cloud tightens, which is why it is used only below ``max_spread`` (and ``max_rotation_spread_deg``).
 A point that projects behind a particle's camera, or outside its image, reads the image's nearest
@@ -28,10 +29,11 @@ import torch
 import torch.nn.functional as F
 
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, photometric_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.particles import weighted_position_spread
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import SurfaceRays
-from locnerf.render.rays import rays_from_poses_and_pixels
+from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 
 # Camera-frame depth (OpenGL: -z) below which a point is treated as behind the camera.
 _MIN_DEPTH = 1e-6
@@ -60,14 +62,11 @@ def warp_reference_pose(poses: torch.Tensor, weights: torch.Tensor, config: Warp
         poses: (N, 4, 4) particle poses.
         weights: (N,) normalised weights.
     """
-    positions = poses[:, :3, 3].double().cpu()
-    w = weights.double().cpu()
+    poses, w = poses.double().cpu(), weights.double().cpu()
     w = w / w.sum()
-    mean_position = (w[:, None] * positions).sum(dim=0)
-    spread = float(torch.sqrt((w[:, None] * (positions - mean_position) ** 2).sum(dim=0)).max())
-    if spread > config.max_spread:
+    if weighted_position_spread(poses[:, :3, 3], w) > config.max_spread:
         return None
-    mean, covariance = weighted_pose_mean_and_covariance(poses.double().cpu(), w, _ROTATION_MEAN_TOLERANCE)
+    mean, covariance = weighted_pose_mean_and_covariance(poses, w, _ROTATION_MEAN_TOLERANCE)
     rotation_spread = math.degrees(math.sqrt(float(covariance.diagonal()[:3].max().clamp_min(0))))
     return mean if rotation_spread <= config.max_rotation_spread_deg else None
 
@@ -89,20 +88,18 @@ def render_reference(
     warp = measurement.warp
     if warp is None:
         raise ValueError("render_reference: measurement.warp is None; expected a WarpConfig")
-    device = pose.device
-    rows = torch.arange(0, intrinsics.height, warp.stride, device=device)
-    columns = torch.arange(0, intrinsics.width, warp.stride, device=device)
-    v, u = torch.meshgrid(rows, columns, indexing="ij")
-    pixels = torch.stack((u.reshape(-1), v.reshape(-1)), dim=-1).float()
+    lattice = pixel_grid(intrinsics, device=pose.device).reshape(intrinsics.height, intrinsics.width, 2)[:: warp.stride, :: warp.stride]
+    rows, columns = lattice.shape[0], lattice.shape[1]
+    pixels = lattice.reshape(-1, 2).float()
     origins, directions = rays_from_poses_and_pixels(pose[None].float(), pixels, intrinsics)
     colours, points, opacity = render_surface(origins[0], directions[0])
     seen = opacity >= warp.min_opacity
     camera_depth = ((points - pose[:3, 3].to(points)) @ pose[:3, 2].to(points)).neg()  # along the optical axis (-z)
-    depth = torch.where(seen, camera_depth, torch.full_like(camera_depth, torch.inf)).reshape(len(rows), len(columns))
+    depth = torch.where(seen, camera_depth, torch.full_like(camera_depth, torch.inf)).reshape(rows, columns)
     eligible = ~beyond_an_edge(depth, warp.occlusion_margin, math.ceil(warp.occlusion_pixels / warp.stride))
-    coarse = colours.reshape(len(rows), len(columns), 3)
+    coarse = colours.reshape(rows, columns, 3)
     chosen = sample_pixels_of_image(coarse.cpu(), measurement, generator, warp.pixels, eligible.reshape(-1))
-    index = (chosen[:, 1].long() * len(columns) + chosen[:, 0].long()).to(colours.device)
+    index = (chosen[:, 1].long() * columns + chosen[:, 0].long()).to(colours.device)
     surface = seen[index, None]
     homogeneous = torch.where(
         surface,
