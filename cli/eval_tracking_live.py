@@ -22,8 +22,8 @@ import torch
 
 from cli.up import ServiceConfigs, start_services
 from locnerf.errors import LocnerfInputError
-from locnerf.eval.tracking import ConvergenceConfig
-from locnerf.eval.tracking_live import LiveObservations, live_summary
+from locnerf.eval.tracking import ConvergenceConfig, error_series
+from locnerf.eval.tracking_live import LiveObservations, live_record, live_summary
 from locnerf.maps.source import WORLD, open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
@@ -127,7 +127,8 @@ def record_run(configs: ServiceConfigs, folder: Path, sensor_seconds: float) -> 
 
 
 def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate: float, vio: dict[str, float], sensor_seconds: float) -> dict[str, Any]:
-    """Run the live experiment; the report (see :func:`locnerf.eval.tracking_live.live_summary`).
+    """Run the live experiment; the report (see :func:`locnerf.eval.tracking_live.live_summary`),
+    with the error series of the scored poses under ``series`` when ``--json`` asks for it, as offline.
 
     ``sensor_seconds`` is the scenario's length (for the prefetch size and the timeout).
     """
@@ -137,4 +138,6 @@ def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate:
     events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
     observed = record_run(service_configs(args, image_rate, vio, events), args.logs, sensor_seconds)
     report = live_summary(observed, normalization, args.kidnap_at, criterion)
+    if args.json:
+        report["series"] = error_series(live_record(observed, normalization, args.kidnap_at))
     return report | {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}

@@ -26,6 +26,21 @@ ConfigModel = TypeVar("ConfigModel", bound=BaseModel)
 
 logger = logging.getLogger(__name__)
 
+ENV_LOG_LEVEL = "LOCNERF_LOG_LEVEL"
+
+
+def log_level_from_environment() -> int:
+    """The services' log level: ``LOCNERF_LOG_LEVEL`` (DEBUG, INFO, WARNING, ERROR; default INFO).
+
+    Raises:
+        ConfigError: the variable names no level.
+    """
+    name = os.environ.get(ENV_LOG_LEVEL, "INFO").strip().upper()
+    levels = {"DEBUG": logging.DEBUG, "INFO": logging.INFO, "WARNING": logging.WARNING, "ERROR": logging.ERROR}
+    if name not in levels:
+        raise ConfigError(f"{ENV_LOG_LEVEL}={os.environ[ENV_LOG_LEVEL]!r}: expected one of {', '.join(levels)}")
+    return levels[name]
+
 
 class BadMessages:
     """Counts dropped messages by kind and logs the first one of each kind with its reason."""
@@ -185,8 +200,9 @@ def service_main(
     run: Callable[[argparse.Namespace], int],
     argv: list[str] | None = None,
 ) -> int:
-    """The ``python -m services.<name>`` entry point of one service: parse ``argv``, log at INFO, ``run``."""
+    """The ``python -m services.<name>`` entry point of one service: parse ``argv``, log at
+    ``LOCNERF_LOG_LEVEL`` (INFO by default), ``run``."""
     parser = argparse.ArgumentParser(prog=prog, description=description)
     add_arguments(parser)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=log_level_from_environment(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     return run(parser.parse_args(argv))

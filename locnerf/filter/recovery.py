@@ -56,6 +56,12 @@ class RecoveryConfig(BaseModel):
         ge=0,
         description="Drop (nats) of the fast average below the slow one that is tolerated: the fraction is 1 − (w_fast/w_slow)·e^tolerance (0: augmented MCL).",
     )
+    confirm_updates: int = Field(
+        1,
+        ge=1,
+        description="Consecutive updates whose likelihood must fall below the tolerated drop before particles are injected "
+        "(1: at once, as augmented MCL; 2 ignores a single outlying update at the cost of one update's delay).",
+    )
     local_share: float = Field(
         0.5, ge=0, le=1, description="Share of the injected particles drawn around the current estimate; the rest are uniform over the search region."
     )
@@ -126,11 +132,13 @@ class RecoveryMonitor:
         self.log_slow: float | None = None
         self.log_fast: float | None = None
         self.streak = 0
+        self.low = 0
 
     def reset(self) -> None:
         """Forget the history (after a re-initialisation)."""
         self.log_slow = self.log_fast = None
         self.streak = 0
+        self.low = 0
 
     def observe(self, log_mean_likelihood: float) -> InjectionPlan:
         """Feed one update's log mean likelihood; return what to inject after its resampling."""
@@ -142,6 +150,9 @@ class RecoveryMonitor:
             if config.enabled:
                 ratio = math.exp(min(0.0, self.log_fast - self.log_slow + config.tolerance))
                 fraction = min(config.max_fraction, max(0.0, 1.0 - ratio))
+        self.low = self.low + 1 if fraction > 0 else 0
+        if self.low < config.confirm_updates:
+            fraction = 0.0
         if self.log_fast is not None and self.log_slow is not None:
             logger.debug("recovery: log-likelihood %.2f, fast %.2f, slow %.2f, fraction %.2f", log_mean_likelihood, self.log_fast, self.log_slow, fraction)
         growth = config.local_growth**self.streak

@@ -297,7 +297,15 @@ class FilterLoop:
         if report.outcome is MergeOutcome.MERGED:
             self.rates["update"].tick()
             self.latencies.append(completed.latency)
-        logger.debug("update %s: ESS %.1f, %d particles, stage %s", report.outcome, report.effective_sample_size, report.particle_count, report.stage)
+        logger.debug(
+            "update %s at odometry stamp %.2f s (%s): ESS %.1f, %d particles, stage %s",
+            report.outcome,
+            self.history.latest_stamp or 0.0,
+            "re-projected" if completed.warped else "rendered",
+            report.effective_sample_size,
+            report.particle_count,
+            report.stage,
+        )
         if report.injected:
             logger.info("odometry stamp %.2f s: %d recovery particles injected", self.history.latest_stamp or 0.0, report.injected)
         return []

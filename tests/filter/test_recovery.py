@@ -45,6 +45,23 @@ def test_local_radius_and_yaw_grow_while_injecting_and_restart_after():
     assert first.local_radius == pytest.approx(0.1)  # a new streak starts from r_0
 
 
+def test_confirmation_ignores_a_single_low_update_and_injects_on_a_lasting_drop():
+    """confirm_updates = 2: one update 10 nats below the average (beyond the 6-nat tolerance) injects
+    nothing; two in a row inject on the second; with the default 1 the single low update injects."""
+    confirmed = RecoveryMonitor(RecoveryConfig(enabled=True, alpha_fast=1.0, tolerance=6.0, confirm_updates=2))
+    immediate = RecoveryMonitor(RecoveryConfig(enabled=True, alpha_fast=1.0, tolerance=6.0))
+    for monitor in (confirmed, immediate):
+        for _ in range(10):
+            assert monitor.observe(20.0).fraction == 0.0
+    assert confirmed.observe(10.0).fraction == 0.0
+    assert immediate.observe(10.0).fraction > 0.0
+    assert confirmed.observe(20.0).fraction == 0.0  # back to normal: the low count restarts
+    assert confirmed.observe(10.0).fraction == 0.0
+    assert confirmed.observe(10.0).fraction > 0.0
+    confirmed.reset()
+    assert confirmed.low == 0
+
+
 def test_disabled_recovery_never_injects():
     monitor = RecoveryMonitor(RecoveryConfig(enabled=False))
     assert [monitor.observe(v).fraction for v in (0.0, -80.0, -80.0)] == [0.0, 0.0, 0.0]

@@ -69,6 +69,9 @@ def test_live_tracking_in_the_world_reports_every_key_and_tracks(tmp_path):
     assert math.isfinite(report["translation_median"]) and report["translation_median"] < 0.15
     assert math.isfinite(report["rotation_median_deg"]) and report["rotation_median_deg"] < 5.0
     assert report["kidnap"]["start_s"] >= 18.0
+    series = report["series"]  # --json: the error series of the scored poses, as offline
+    assert len(series["stamps"]) == len(series["translation_error"]) == len(series["rotation_error_deg"]) > 0
+    assert len(series["update_stamps"]) > 0 and set(series["update_stamps"]) <= set(series["stamps"])
     assert (tmp_path / "ingest.toml").is_file() and (tmp_path / "filter.log").is_file()
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import signal
 import sys
 import tomllib
@@ -10,8 +11,9 @@ from pathlib import Path
 import pytest
 from pydantic import BaseModel, ConfigDict
 
+from locnerf.errors import ConfigError
 from services.nerf_worker.__main__ import WorkerConfig
-from services.runtime import load_service_config
+from services.runtime import ENV_LOG_LEVEL, load_service_config, log_level_from_environment
 from services.sensor_ingest.__main__ import IngestConfig
 from services.supervisor import Supervisor, config_toml, loopback_environment, service_command, write_config
 from services.transport import TransportConfig
@@ -117,3 +119,13 @@ def test_a_service_runs_from_its_config_file(tmp_path):
     assert process.wait(timeout=120) != 0
     assert tomllib.loads((tmp_path / "ingest.toml").read_text()) == {"robot_id": "r", "source": "replay"}
     assert "needs replay.path" in (tmp_path / "ingest.log").read_text()
+
+
+def test_the_log_level_comes_from_the_environment_and_a_bad_one_is_named(monkeypatch):
+    monkeypatch.delenv(ENV_LOG_LEVEL, raising=False)
+    assert log_level_from_environment() == logging.INFO
+    monkeypatch.setenv(ENV_LOG_LEVEL, " debug ")
+    assert log_level_from_environment() == logging.DEBUG
+    monkeypatch.setenv(ENV_LOG_LEVEL, "chatty")
+    with pytest.raises(ConfigError, match=r"LOCNERF_LOG_LEVEL='chatty': expected one of DEBUG, INFO, WARNING, ERROR"):
+        log_level_from_environment()
