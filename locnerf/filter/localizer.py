@@ -21,6 +21,12 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
+from locnerf.filter.depth_measurement import (
+    DepthObservation,
+    rendered_depth_log_likelihoods,
+    sample_depth_pixels,
+    warped_depth_log_likelihoods,
+)
 from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
 from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_around_keyframes
 from locnerf.filter.keyframes import KeyframeIndex
@@ -168,6 +174,7 @@ class Localizer:
         self.region = region
         self.keyframes = keyframes
         self._warned_camera = False
+        self._warned_no_depth = False
         self.epoch = 0
         self.stage = AnnealingStage.COARSE
         self.particles: ParticleSet | None = None
@@ -408,15 +415,33 @@ class Localizer:
         return injected
 
     # ----------------------------------------------------------------- synchronous use
-    def update(self, image: torch.Tensor, intrinsics: PinholeIntrinsics, render_rays: RenderRays, render_surface: SurfaceRays | None = None) -> MergeReport:
+    def update(
+        self,
+        image: torch.Tensor,
+        intrinsics: PinholeIntrinsics,
+        render_rays: RenderRays,
+        render_surface: SurfaceRays | None = None,
+        depth: DepthObservation | None = None,
+    ) -> MergeReport:
         """One complete update on an image (H, W, 3) in [0, 1]: the keyframe start when one is
         pending, snapshot, render (``measurement.pixels_for`` the particle count, or by re-projection
         of one reference render when ``measurement.warp`` is set and the cloud is tight: ``render_surface``
-        is then needed, see :mod:`locnerf.filter.warp`), merge."""
+        is then needed, see :mod:`locnerf.filter.warp`), merge.
+
+        With ``measurement.depth`` set and a ``depth`` image of the frame, the depth term
+        (:mod:`locnerf.filter.depth_measurement`) is added to the colour log-likelihoods: rendered
+        from every particle (``render_surface`` needed), or re-projected from the reference render's
+        surface points when the update warps. Without ``measurement.depth``, ``depth`` is ignored;
+        with it but no ``depth``, the update is colour only (warned once)."""
         if image.ndim != 3 or image.shape[-1] != 3:
             raise ValueError(f"image: expected shape (H, W, 3), got {tuple(image.shape)}")
         if (image.shape[0], image.shape[1]) != (intrinsics.height, intrinsics.width):
             raise ValueError(f"image size {image.shape[1]}×{image.shape[0]} does not match the intrinsics {intrinsics.width}×{intrinsics.height}")
+        depth = self._depth_to_use(depth)
+        if depth is not None and render_surface is None:
+            raise ValueError(
+                "measurement.depth is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave [measurement.depth] unset for it"
+            )
         self.seed_from_image(image, intrinsics)
         snap = self.snapshot()
         config = self.config.measurement
@@ -424,9 +449,13 @@ class Localizer:
         if reference_pose is not None:
             if render_surface is None:
                 raise ValueError("measurement.warp is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave warp unset for it")
-            reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator)
+            depth_pixels = config.depth.pixels if depth is not None and config.depth is not None else 0
+            depth_camera = depth.intrinsics if depth is not None else None
+            reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator, depth_pixels, depth_camera)
             log_likelihoods = warp_log_likelihoods(snap.poses, reference, image.to(self.device), intrinsics, config.exponent, config.exposure_gain_range)
             rays = reference.rays
+            if depth is not None and config.depth is not None:
+                log_likelihoods = log_likelihoods + warped_depth_log_likelihoods(snap.poses, reference.depth_points, depth, config.depth).to(log_likelihoods)
         else:
             pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
             log_likelihoods = particle_log_likelihoods(
@@ -440,9 +469,24 @@ class Localizer:
                 config.exposure_gain_range,
             )
             rays = len(pixels) * snap.poses.shape[0]
+            if depth is not None and render_surface is not None and config.depth is not None:
+                depth_pixels = sample_depth_pixels(depth, config.depth, self.generator)
+                log_likelihoods = log_likelihoods + rendered_depth_log_likelihoods(
+                    snap.poses, depth, depth_pixels.to(self.device), render_surface, config.depth, config.ray_chunk
+                ).to(log_likelihoods)
+                rays += len(depth_pixels) * snap.poses.shape[0]
         warped = reference_pose is not None
         report = self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics), warped)
         return dataclasses.replace(report, rays=rays)
+
+    def _depth_to_use(self, depth: DepthObservation | None) -> DepthObservation | None:
+        """``depth`` when ``measurement.depth`` is set (warned once when the frame has none), else None."""
+        if self.config.measurement.depth is None:
+            return None
+        if depth is None and not self._warned_no_depth:
+            logger.warning("measurement.depth is set but the frame has no depth image: colour only for frames without depth")
+            self._warned_no_depth = True
+        return depth
 
     def warp_reference(self, snap: UpdateSnapshot) -> torch.Tensor | None:
         """The reference pose (4, 4) float64 of a re-projection update of ``snap`` (its weighted mean),

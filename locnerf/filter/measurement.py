@@ -35,7 +35,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import torch
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import RenderRays
@@ -80,6 +80,28 @@ class WarpConfig(BaseModel):
     )
 
 
+class DepthConfig(BaseModel):
+    """The depth term of the likelihood for RGB-D cameras (:mod:`locnerf.filter.depth_measurement`); ``[measurement.depth]`` turns it on.
+
+    It lives here, beside :class:`WarpConfig`, so that :class:`MeasurementConfig` can hold it without an import cycle."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    pixels: int = Field(256, ge=1, description="M_d: depth pixels per update, drawn uniformly among the valid readings.")
+    truncation: float = Field(
+        0.1, gt=0, description="c, map units: a depth residual counts at most this much (robust to holes, depth edges and moving things)."
+    )
+    exponent: float = Field(4.0, gt=0, description="γ_d: power of the (M / Σ min(r², c²)) depth likelihood.")
+    min_depth: float = Field(0.1, ge=0, description="Readings nearer than this (map units) are invalid.")
+    max_depth: float = Field(6.0, gt=0, description="Readings farther than this (map units) are invalid.")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> DepthConfig:
+        if self.min_depth >= self.max_depth:
+            raise ValueError(f"min_depth={self.min_depth}, max_depth={self.max_depth}: expected min_depth < max_depth")
+        return self
+
+
 class MeasurementConfig(BaseModel):
     """Photometric likelihood of a particle given sampled pixels."""
 
@@ -114,6 +136,12 @@ class MeasurementConfig(BaseModel):
         " instead of rendering from every particle; None: always render (the original).",
     )
 
+    depth: DepthConfig | None = Field(
+        None,
+        description="Depth term for RGB-D cameras (locnerf.filter.depth_measurement): added to the colour log-likelihood of frames"
+        " that come with a depth image; None: colour only (the original).",
+    )
+
     def pixels_for(self, particles: int) -> int:
         """M for an update of ``particles`` particles under the ray budget (see ``ray_budget``)."""
         if particles < 1:
@@ -130,7 +158,7 @@ def _check_pixel_count(height: int, width: int, count: int) -> None:
         raise ValueError(f"pixels M={count}: expected 1 <= M <= {height * width} (the image has {width}×{height} pixels)")
 
 
-def _pixel_coordinates(flat: torch.Tensor, width: int) -> torch.Tensor:
+def pixel_coordinates(flat: torch.Tensor, width: int) -> torch.Tensor:
     """Row-major pixel indices (M,) -> (M, 2) float32 (u, v)."""
     return torch.stack(((flat % width).float(), torch.div(flat, width, rounding_mode="floor").float()), dim=-1)
 
@@ -143,7 +171,17 @@ def sample_pixels(height: int, width: int, count: int, generator: torch.Generato
     """
     _check_pixel_count(height, width, count)
     flat = torch.randperm(height * width, generator=generator)[:count]
-    return _pixel_coordinates(flat, width)
+    return pixel_coordinates(flat, width)
+
+
+def draw_uniformly(candidates: torch.Tensor, count: int, generator: torch.Generator) -> torch.Tensor:
+    """``count`` of the (K,) ``candidates`` drawn uniformly: distinct when K >= count, with replacement
+    otherwise (K >= 1). Returns (count,) of the candidates' dtype."""
+    if len(candidates) == 0:
+        raise ValueError(f"draw_uniformly: no candidates to draw {count} from; expected at least one")
+    if len(candidates) >= count:
+        return candidates[torch.randperm(len(candidates), generator=generator)[:count].to(candidates.device)]
+    return candidates[torch.randint(len(candidates), (count,), generator=generator).to(candidates.device)]
 
 
 def gradient_weights(image: torch.Tensor) -> torch.Tensor:
@@ -204,7 +242,7 @@ def sample_pixels_of_image(
     uniform_keys[~eligible] = torch.inf
     uniform_keys[chosen] = torch.inf
     others = torch.topk(uniform_keys, count - len(chosen), largest=False, sorted=False).indices
-    return _pixel_coordinates(torch.cat((chosen, others)), width)
+    return pixel_coordinates(torch.cat((chosen, others)), width)
 
 
 def observed_colours(image: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:

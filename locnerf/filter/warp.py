@@ -23,12 +23,12 @@ weigh every particle.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
 
-from locnerf.filter.measurement import MeasurementConfig, WarpConfig, photometric_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.measurement import MeasurementConfig, WarpConfig, draw_uniformly, photometric_log_likelihoods, sample_pixels_of_image
 from locnerf.filter.particles import weighted_position_spread
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.render.camera import PinholeIntrinsics
@@ -38,6 +38,8 @@ from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 # Camera-frame depth (OpenGL: -z) below which a point is treated as behind the camera.
 _MIN_DEPTH = 1e-6
 _ROTATION_MEAN_TOLERANCE = 1e-7
+DEPTH_BORDER = 0.05
+"""Fraction of the depth image's width and height, at each side, where reference depth points are not drawn."""
 
 
 @dataclass(frozen=True)
@@ -48,11 +50,15 @@ class WarpReference:
         colours: (M, 3) rendered colours c_j.
         points: (M, 4) homogeneous map-frame points: (X_j, 1) for a surface, (d_j, 0) for a direction at infinity.
         rays: how many rays the reference render took.
+        depth_points: (K, 4) homogeneous map-frame surface points (w = 1) for the depth term
+            (:func:`locnerf.filter.depth_measurement.warped_depth_log_likelihoods`), drawn uniformly
+            among the render's surface pixels; (0, 4) when none were asked for.
     """
 
     colours: torch.Tensor
     points: torch.Tensor
     rays: int = 0
+    depth_points: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 4))
 
 
 def warp_reference_pose(poses: torch.Tensor, weights: torch.Tensor, config: WarpConfig) -> torch.Tensor | None:
@@ -72,7 +78,13 @@ def warp_reference_pose(poses: torch.Tensor, weights: torch.Tensor, config: Warp
 
 
 def render_reference(
-    render_surface: SurfaceRays, pose: torch.Tensor, intrinsics: PinholeIntrinsics, measurement: MeasurementConfig, generator: torch.Generator
+    render_surface: SurfaceRays,
+    pose: torch.Tensor,
+    intrinsics: PinholeIntrinsics,
+    measurement: MeasurementConfig,
+    generator: torch.Generator,
+    depth_pixels: int = 0,
+    depth_camera: PinholeIntrinsics | None = None,
 ) -> WarpReference:
     """Render the reference view at every ``warp.stride``-th pixel and keep M = ``warp.pixels`` of them.
 
@@ -84,6 +96,15 @@ def render_reference(
     Args:
         pose: (4, 4) reference camera pose ``T_world_cam``.
         measurement: its ``warp`` must be set.
+        depth_pixels: how many surface points to draw for the depth term (``depth_points``), uniformly
+            among the pixels that met a surface and, with ``depth_camera``,
+            project into the depth image from the reference pose at least ``DEPTH_BORDER`` of its size
+            from its border (drawn after the M, so the M do not depend on them); 0: none.
+        depth_camera: the depth camera (it sits at the pose); None: no check against its view.
+
+    A depth point outside a particle's depth image counts as the largest residual, so points near the
+    border of the depth camera's view (narrower than the colour camera's on a Kinect) would favour
+    particles that bring more of them into view, whatever their depths say: the border keeps them out.
     """
     warp = measurement.warp
     if warp is None:
@@ -106,7 +127,19 @@ def render_reference(
         torch.cat((points[index], torch.ones_like(surface, dtype=points.dtype)), dim=-1),
         torch.cat((directions[0].to(points.device, points.dtype)[index], torch.zeros_like(surface, dtype=points.dtype)), dim=-1),
     )
-    return WarpReference(colours[index].float(), homogeneous.float(), len(pixels))
+    depth_points = torch.zeros(0, 4)
+    candidates = seen.clone()
+    if depth_camera is not None:
+        homogeneous_points = torch.cat((points, torch.ones_like(points[:, :1])), dim=-1)
+        projected, in_front = project_points(pose[None].to(points), homogeneous_points, depth_camera)
+        margin = torch.tensor([depth_camera.width, depth_camera.height], dtype=points.dtype, device=points.device) * DEPTH_BORDER
+        size = torch.tensor([depth_camera.width - 1, depth_camera.height - 1], dtype=points.dtype, device=points.device)
+        candidates &= in_front[0] & ((projected[0] >= margin) & (projected[0] <= size - margin)).all(dim=-1)
+    surface_pixels = torch.nonzero(candidates.cpu()).reshape(-1)
+    if depth_pixels > 0 and len(surface_pixels) > 0:
+        drawn = draw_uniformly(surface_pixels, depth_pixels, generator).to(points.device)
+        depth_points = torch.cat((points[drawn], torch.ones(len(drawn), 1, dtype=points.dtype, device=points.device)), dim=-1).float()
+    return WarpReference(colours[index].float(), homogeneous.float(), len(pixels), depth_points)
 
 
 def beyond_an_edge(depth: torch.Tensor, margin: float, radius: int) -> torch.Tensor:
@@ -116,6 +149,16 @@ def beyond_an_edge(depth: torch.Tensor, margin: float, radius: int) -> torch.Ten
         return torch.zeros_like(depth, dtype=torch.bool)
     nearest = -F.max_pool2d(-depth[None, None], kernel_size=2 * radius + 1, stride=1, padding=radius)[0, 0]
     return nearest < depth * (1.0 - margin)
+
+
+def points_in_cameras(poses: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Homogeneous map-frame points (M, 4) (w = 0: directions) in the frame of every camera
+    ``T_world_cam`` (N, 4, 4): ``R^T (X - w t)`` -> (N, M, 3) (OpenGL axes: depth is -z)."""
+    rotation = poses[:, :3, :3]
+    translation = poses[:, :3, 3]
+    points = points.to(poses.device, poses.dtype)
+    relative = points[None, :, :3] - points[None, :, 3:] * translation[:, None, :]
+    return torch.einsum("nji,nmj->nmi", rotation, relative)
 
 
 def project_points(poses: torch.Tensor, points: torch.Tensor, intrinsics: PinholeIntrinsics) -> tuple[torch.Tensor, torch.Tensor]:
@@ -128,12 +171,11 @@ def project_points(poses: torch.Tensor, points: torch.Tensor, intrinsics: Pinhol
         (N, M, 2) (u, v) in the pixel convention of :mod:`locnerf.render.rays` (inverse of its
         rays), and (N, M) bool: in front of the camera.
     """
-    rotation = poses[:, :3, :3]
-    translation = poses[:, :3, 3]
-    points = points.to(poses.device, poses.dtype)
-    # Camera frame: R^T (X - w t), for every particle and point.
-    relative = points[None, :, :3] - points[None, :, 3:] * translation[:, None, :]
-    camera = torch.einsum("nji,nmj->nmi", rotation, relative)
+    return project_camera_points(points_in_cameras(poses, points), intrinsics)
+
+
+def project_camera_points(camera: torch.Tensor, intrinsics: PinholeIntrinsics) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pinhole projection of camera-frame points (..., 3) (OpenGL axes) -> (..., 2) (u, v) and (...) bool: in front of the camera."""
     depth = -camera[..., 2]
     in_front = depth > _MIN_DEPTH
     safe_depth = torch.where(in_front, depth, torch.ones_like(depth))
