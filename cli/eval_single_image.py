@@ -10,7 +10,7 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from cli.flags import from_flags
+from cli.flags import NO_DEPTH_HELP, from_flags, without_depth
 from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
 from locnerf.devices import resolve_device
@@ -53,6 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         parser.add_argument("--updates", type=int, default=updates, help="update steps per trial")
         parser.add_argument("--preset", default=default_preset, help="filter preset")
         parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
+        parser.add_argument("--no-depth", action="store_true", help=NO_DEPTH_HELP)
         parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
         parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
         parser.add_argument("--plots", type=Path, default=None, help="folder for PNG figures")
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         views += logged_views(every_frame, trials, held_out_frames(args.data, "all", args.downscale))
     if args.trials:
         views += seeded_views(pool, args.trials, generator, held_out_frames(args.data, args.split, args.downscale))
-    config = load_config(args.config) if args.config else preset(args.preset)
+    config = without_depth(load_config(args.config) if args.config else preset(args.preset), args.no_depth)
     keyframes = recovery_keyframes(config, radiance_map, pool.intrinsics, args.seed + 2) if args.protocol == "global" else None
     localizer = Localizer(config, generator, device=device, keyframes=keyframes)
     trial_config = from_flags(TrialConfig, {"protocol": args.protocol, "updates": args.updates, "up": radiance_map.normalization.up})
@@ -91,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         "updates": args.updates,
         "particles": config.particles,
         "pixels": config.measurement.pixels,
+        "depth": config.measurement.depth.model_dump() if config.measurement.depth is not None and pool.depths is not None else None,
         "device": str(device),
         "totals": totals(records),
         "trials": records,

@@ -10,7 +10,7 @@ from pathlib import Path
 import torch
 
 from cli.eval_tracking_live import run_live
-from cli.flags import from_flags
+from cli.flags import NO_DEPTH_HELP, from_flags, without_depth
 from locnerf.config import load_config, preset
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
@@ -68,6 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--init", choices=("global", "gaussian"), default="global", help="start: the paper's global cube, or a Gaussian around the truth")
     parser.add_argument("--kidnap-at", type=float, default=None, help="seconds: the camera jumps half a loop ahead, unseen by the odometry")
     parser.add_argument("--no-recovery", action="store_true", help="turn kidnapping recovery off in the chosen configuration")
+    parser.add_argument("--no-depth", action="store_true", help=NO_DEPTH_HELP)
     parser.add_argument("--converged-translation", type=float, default=0.05, help="convergence: translation error threshold, map units")
     parser.add_argument("--converged-rotation", type=float, default=5.0, help="convergence: rotation error threshold, degrees")
     parser.add_argument("--converged-hold", type=float, default=2.0, help="convergence: seconds both errors must stay under the thresholds")
@@ -87,8 +88,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def localizer_config(args: argparse.Namespace) -> LocalizerConfig:
-    """--config, else --preset; recovery turned off if --no-recovery."""
-    config = load_config(args.config) if args.config is not None else preset(args.preset)
+    """--config, else --preset; recovery turned off if --no-recovery, the depth term if --no-depth."""
+    config = without_depth(load_config(args.config) if args.config is not None else preset(args.preset), args.no_depth)
     if args.no_recovery:
         config = config.model_copy(update={"recovery": config.recovery.model_copy(update={"enabled": False})})
     return config

@@ -8,6 +8,7 @@ from typing import Any, TypeVar
 from pydantic import BaseModel, ValidationError
 
 from locnerf.errors import LocnerfInputError
+from locnerf.filter import LocalizerConfig
 
 Model = TypeVar("Model", bound=BaseModel)
 
@@ -37,3 +38,13 @@ def from_flags(model: type[Model], values: Mapping[str, Any], flags: Mapping[str
             reason = problem["msg"].removeprefix("Value error, ").replace("Input should be", "must be", 1)
             problems.append(f"{flag}: {reason}, got {problem['input']!r}")
         raise LocnerfInputError("; ".join(problems)) from error
+
+
+NO_DEPTH_HELP = "colour only: ignore the data set's depth images even when the configuration sets [measurement.depth]"
+
+
+def without_depth(config: LocalizerConfig, no_depth: bool) -> LocalizerConfig:
+    """``config`` without its depth term when ``no_depth`` (the ``--no-depth`` flag), else unchanged."""
+    if not no_depth or config.measurement.depth is None:
+        return config
+    return config.model_copy(update={"measurement": config.measurement.model_copy(update={"depth": None})})

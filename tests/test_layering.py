@@ -195,11 +195,12 @@ def test_render_never_imports_field():
 
 def test_filter_reaches_rendering_only_through_the_measurement_models():
     """Rays and renders appear in the measurement models only: ``measurement.py`` (rendering from every
-    particle) and ``warp.py`` (re-projecting one reference render); the filter never imports a map backend."""
+    particle), ``warp.py`` (re-projecting one reference render) and ``depth_measurement.py`` (the depth
+    term, both ways); the filter never imports a map backend."""
 
     def forbidden(path: Path, name: str) -> bool:
         rendering = name.startswith("locnerf.render") and name != "locnerf.render.camera"
-        return (rendering and path.name not in ("measurement.py", "warp.py")) or name.startswith("locnerf.field")
+        return (rendering and path.name not in ("measurement.py", "warp.py", "depth_measurement.py")) or name.startswith("locnerf.field")
 
     assert offenders("locnerf/filter", forbidden) == []
 

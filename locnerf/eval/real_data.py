@@ -19,13 +19,15 @@ from locnerf.eval.paper_logs import LoggedRun, LoggedTrial
 from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialConfig, TrialResult, run_trial
 from locnerf.field.protocol import RadianceMap, surface_renderer
 from locnerf.filter import Localizer
+from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.geometry import rotation_error_deg, translation_error
 from locnerf.render.camera import PinholeIntrinsics
 
 
 @dataclass(frozen=True)
 class View:
-    """One trial's input: a real image (H, W, 3), its true pose (4, 4) float64 and where it came from."""
+    """One trial's input: a real image (H, W, 3), its true pose (4, 4) float64 and where it came from;
+    ``depth``: the frame's depth image for RGB-D data sets (None otherwise)."""
 
     frame: int
     name: str
@@ -34,6 +36,14 @@ class View:
     held_out: bool
     offset: torch.Tensor | None = None
     logged: LoggedTrial | None = None
+    depth: DepthObservation | None = None
+
+
+def frame_depth(posed: PosedImages, position: int) -> DepthObservation | None:
+    """The depth image of frame ``position`` of ``posed`` (map units, its own camera), None for colour-only data."""
+    if posed.depths is None or posed.depth_intrinsics is None:
+        return None
+    return DepthObservation(posed.depths[position], posed.depth_intrinsics)
 
 
 def logged_views(posed: PosedImages, trials: list[LoggedTrial], held_out: set[int]) -> list[View]:
@@ -51,18 +61,33 @@ def logged_views(posed: PosedImages, trials: list[LoggedTrial], held_out: set[in
         gap = float(translation_error(truth, trial.truth)) + float(rotation_error_deg(truth, trial.truth)) / 180.0
         if gap > 1e-3:
             raise DatasetError(f"frame {trial.frame}: logged ground truth differs from the reader's pose (gap {gap:.2e}); wrong data set or normalisation?")
-        views.append(View(trial.frame, posed.names[position], truth, posed.images[position], trial.frame in held_out, trial.translation_offset, trial))
+        views.append(
+            View(
+                trial.frame,
+                posed.names[position],
+                truth,
+                posed.images[position],
+                trial.frame in held_out,
+                trial.translation_offset,
+                trial,
+                frame_depth(posed, position),
+            )
+        )
     return views
 
 
 def seeded_views(posed: PosedImages, count: int, generator: torch.Generator, held_out: set[int]) -> list[View]:
     """``count`` views of frames drawn uniformly (with replacement) from ``posed``."""
     positions = torch.randint(len(posed), (count,), generator=generator).tolist()
-    return [View(posed.indices[p], posed.names[p], posed.T_world_cam[p].double(), posed.images[p], posed.indices[p] in held_out) for p in positions]
+    return [
+        View(posed.indices[p], posed.names[p], posed.T_world_cam[p].double(), posed.images[p], posed.indices[p] in held_out, depth=frame_depth(posed, p))
+        for p in positions
+    ]
 
 
 def run_views(views: list[View], radiance_map: RadianceMap, intrinsics: PinholeIntrinsics, localizer: Localizer, config: TrialConfig) -> list[TrialResult]:
-    """One trial per view seen by the camera ``intrinsics``; logged views start at the logged offset."""
+    """One trial per view seen by the camera ``intrinsics``; logged views start at the logged offset; a view's
+    depth image is used when the localizer's ``measurement.depth`` is set."""
     return [
         run_trial(
             view.image.to(radiance_map.device),
@@ -74,6 +99,7 @@ def run_views(views: list[View], radiance_map: RadianceMap, intrinsics: PinholeI
             config,
             view.offset,
             surface_renderer(radiance_map),
+            view.depth,
         )
         for view in views
     ]

@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from locnerf.field.protocol import RadianceMap, SurfaceRays, surface_renderer
 from locnerf.filter import Localizer
+from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.filter.initialization import uniform
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
 from locnerf.render import PinholeIntrinsics, RenderRays
@@ -108,11 +109,13 @@ def run_trial(
     config: TrialConfig,
     offset: torch.Tensor | None = None,
     render_surface: SurfaceRays | None = None,
+    depth: DepthObservation | None = None,
 ) -> TrialResult:
     """Localize one image whose true pose is ``truth`` (4, 4); the localizer is re-initialised.
 
     ``offset`` (3,) fixes the start's translation offset (logged starts); drawn when None.
     ``render_surface`` lets a localizer with ``measurement.warp`` weigh a converged cloud by re-projection.
+    ``depth`` is the frame's depth image, used when the localizer's ``measurement.depth`` is set.
     """
     initialize_for_protocol(localizer, truth, config, localizer.generator, offset)
     truth = truth.double().cpu()
@@ -131,7 +134,7 @@ def run_trial(
     rays = 0
     for _ in range(config.updates):
         localizer.predict()
-        rays += localizer.update(image, intrinsics, render_rays, render_surface).rays
+        rays += localizer.update(image, intrinsics, render_rays, render_surface, depth).rays
         estimate = localizer.estimate().pose
         record(estimate, rays, time.perf_counter() - started)
     result.seconds = time.perf_counter() - started

@@ -26,6 +26,7 @@ from tqdm import tqdm
 from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import RadianceMap, surface_renderer
 from locnerf.filter import Localizer, SearchRegion
+from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.geometry import make_pose, relative_pose, rotation_error_deg, se3_exp, translation_error
 from locnerf.sim.scenario import TrackingScenario
 
@@ -96,6 +97,12 @@ def search_region(radiance_map: RadianceMap) -> SearchRegion:
     return SearchRegion(low=tuple(low), high=tuple(high), up=radiance_map.normalization.up)
 
 
+def frame_depth(scenario: TrackingScenario, tick: int, scale: float) -> DepthObservation | None:
+    """The depth image taken at index ``tick`` in map units (``scale`` map units per metre); None without one."""
+    depth = scenario.depth(tick)
+    return None if depth is None else DepthObservation(depth.depth * scale, depth.intrinsics)
+
+
 def run_tracking(
     scenario: TrackingScenario,
     radiance_map: RadianceMap,
@@ -111,6 +118,9 @@ def run_tracking(
     first update, noise-only predictions and updates (fresh pixels each) on the same image, as a
     live filter could while it waits for the next frame when its updates are faster than the
     camera (the services do not do this).
+
+    With the localizer's ``measurement.depth`` set, the path's depth images (RGB-D sequences) join
+    their images' updates.
     """
     if updates_per_image < 1:
         raise LocnerfInputError(f"updates per image {updates_per_image}: expected >= 1")
@@ -127,10 +137,11 @@ def run_tracking(
             localizer.predict(increment.to(localizer.device, localizer.dtype))
         if tick in image_ticks:
             image = scenario.image(tick, image_generator).to(radiance_map.device)
+            depth = frame_depth(scenario, tick, normalization.scale) if localizer.config.measurement.depth is not None else None
             for repeat in range(updates_per_image):
                 if repeat > 0:
                     localizer.predict()
-                report = localizer.update(image, intrinsics, radiance_map.render_rays, surface_renderer(radiance_map))
+                report = localizer.update(image, intrinsics, radiance_map.render_rays, surface_renderer(radiance_map), depth)
                 updates.append(tick)
                 if report.injected:
                     logger.info("t = %.2f s: %d recovery particles injected", float(scenario.stamps[tick]), report.injected)

@@ -23,6 +23,7 @@ import torch
 from locnerf.data import PosedImages, read_nerf_synthetic
 from locnerf.data.detect import dataset_format, read_dataset
 from locnerf.errors import DatasetError, LocnerfInputError
+from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.geometry import relative_pose, se3_exp, se3_log
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
@@ -58,6 +59,9 @@ class CameraPath(Protocol):
 
     def image_at(self, time: float, pose: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """Image (H, W, 3) float32 in [0, 1] seen at path time ``time`` from ``pose`` (4, 4)."""
+
+    def depth_at(self, time: float) -> DepthObservation | None:
+        """The depth image (metres) taken with the image at path time ``time``; None without a depth camera."""
 
 
 def _grid_times(rate: float, odom_rate: float, duration: float) -> torch.Tensor:
@@ -106,6 +110,9 @@ class WorldPath:
 
     def image_at(self, time: float, pose: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         return observe_image(self.world.render_image, pose, time, self.intrinsics, self.camera, generator)
+
+    def depth_at(self, time: float) -> DepthObservation | None:
+        return None  # the simulated camera is RGB only
 
 
 class SequencePath:
@@ -171,18 +178,27 @@ class SequencePath:
         return torch.arange(count, dtype=torch.float64) * stride * self.frame_period
 
     def image_at(self, time: float, pose: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        return self.frames.images[self._frame_at(time)]
+
+    def depth_at(self, time: float) -> DepthObservation | None:
+        if self.frames.depths is None or self.frames.depth_intrinsics is None:
+            return None
+        return DepthObservation(self.frames.depths[self._frame_at(time)], self.frames.depth_intrinsics)
+
+    def _frame_at(self, time: float) -> int:
+        """The frame taken at path time ``time`` (a frame stamp)."""
         phase = time / self.frame_period
         index = round(phase)
         if abs(phase - index) > 1e-6:
             raise ValueError(f"image time {time} s is between frames (period {self.frame_period} s): expected a frame stamp")
-        return self.frames.images[index % len(self.frames)]
+        return index % len(self.frames)
 
 
 def read_sequence_path(
     folder: str | Path, split: str, downscale: int | None, speed: float, odom_rate: float, background: str = "white", frame_rate: float | None = None
 ) -> SequencePath:
     """A data-set folder's ``split`` (any format of :func:`locnerf.data.read_dataset`) as a
-    :class:`SequencePath`, poses in the data set's metric frame.
+    :class:`SequencePath`, poses (and depth images, where the data set has them) in the data set's metric frame.
 
     ``downscale`` None is the reader's default; ``background`` is the colour NeRF-synthetic RGBA
     frames are composited on (other formats have none); ``frame_rate`` replays the frames at the
@@ -192,5 +208,6 @@ def read_sequence_path(
         frames = read_nerf_synthetic(folder, split=split, background=background, downscale=downscale or 1)
     else:
         frames = read_dataset(folder, split=split, downscale=downscale)
-    metric = dataclasses.replace(frames, T_world_cam=frames.normalization.map_to_metric(frames.T_world_cam.double()))
+    depths = frames.depths / frames.normalization.scale if frames.depths is not None else None
+    metric = dataclasses.replace(frames, T_world_cam=frames.normalization.map_to_metric(frames.T_world_cam.double()), depths=depths)
     return SequencePath(metric, speed, odom_rate, frame_rate)

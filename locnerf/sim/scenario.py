@@ -28,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import MapNormalization
+from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.geometry import pose_inverse, relative_pose
 from locnerf.sim.paths import CameraPath
 from locnerf.sim.sensors import VioConfig, simulate_odometry
@@ -74,6 +75,10 @@ class TrackingScenario:
         """The image (H, W, 3) float32 in [0, 1] taken at index ``tick``."""
         metric_pose = self.path.poses_at(self.path_times[tick : tick + 1])[0]
         return self.path.image_at(float(self.path_times[tick]), metric_pose, generator)
+
+    def depth(self, tick: int) -> DepthObservation | None:
+        """The depth image (metres) taken with the image at index ``tick``; None without a depth camera."""
+        return self.path.depth_at(float(self.path_times[tick]))
 
 
 @dataclass(frozen=True)

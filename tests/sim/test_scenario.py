@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -97,6 +98,21 @@ def test_sequence_path_passes_through_its_frames_along_geodesics() -> None:
         frame = round(float(scenario.path_times[tick]) / path.frame_period) % len(frames)
         torch.testing.assert_close(scenario.image(tick, generator), frames.images[frame])
         torch.testing.assert_close(scenario.truth[tick], frames.T_world_cam[frame])
+
+
+def test_an_rgbd_sequence_gives_each_image_its_depth_and_a_colour_one_none() -> None:
+    """Each image tick's depth image is its frame's, with the depth camera; the world's camera has none."""
+    frames = tiny_sequence()
+    depth_camera = PinholeIntrinsics(fx=4.0, fy=4.0, cx=2.0, cy=1.5, width=4, height=3)
+    depths = torch.arange(len(frames), dtype=torch.float32)[:, None, None].expand(len(frames), 3, 4).contiguous() + 1.0
+    path = SequencePath(dataclasses.replace(frames, depths=depths, depth_intrinsics=depth_camera), speed=1.0, odom_rate=15.0, frame_rate=15.0)
+    scenario = build_scenario(path, ScenarioConfig(duration=0.3, image_rate=5.0, vio=PERFECT_VIO), MapNormalization())
+    for tick in scenario.image_ticks:
+        depth = scenario.depth(tick)
+        assert depth is not None and depth.intrinsics == depth_camera
+        torch.testing.assert_close(depth.depth, depths[round(float(scenario.path_times[tick]) / path.frame_period) % len(frames)])
+    assert SequencePath(frames, speed=1.0, odom_rate=15.0).depth_at(0.0) is None
+    assert world_path().depth_at(0.0) is None
 
 
 def test_sequence_replays_at_its_capture_rate() -> None:
