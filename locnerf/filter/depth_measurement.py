@@ -19,7 +19,7 @@ Two ways to get d_ij:
 - warped (:func:`warped_depth_log_likelihoods`): for a converged cloud, M surface points X_j of the
   one reference render (:mod:`locnerf.filter.warp`) are moved into each particle's camera: the
   prediction is their camera-frame depth, the observation the depth image at their projection
-  (nearest pixel). No rendering per particle.
+  (:func:`read_depth_at`: bilinear on a smooth surface, else the nearest pixel). No rendering per particle.
 
 The depth camera sits at the particle pose (7-Scenes poses serve both cameras) with its own
 intrinsics; depth images are never resampled onto the colour grid.
@@ -40,6 +40,7 @@ __all__ = [
     "DepthConfig",
     "DepthObservation",
     "depth_log_likelihoods",
+    "read_depth_at",
     "rendered_depth_log_likelihoods",
     "sample_depth_pixels",
     "warped_depth_log_likelihoods",

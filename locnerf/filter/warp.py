@@ -127,19 +127,36 @@ def render_reference(
         torch.cat((points[index], torch.ones_like(surface, dtype=points.dtype)), dim=-1),
         torch.cat((directions[0].to(points.device, points.dtype)[index], torch.zeros_like(surface, dtype=points.dtype)), dim=-1),
     )
-    depth_points = torch.zeros(0, 4)
-    candidates = seen.clone()
-    if depth_camera is not None:
-        homogeneous_points = torch.cat((points, torch.ones_like(points[:, :1])), dim=-1)
-        projected, in_front = project_points(pose[None].to(points), homogeneous_points, depth_camera)
-        margin = torch.tensor([depth_camera.width, depth_camera.height], dtype=points.dtype, device=points.device) * DEPTH_BORDER
-        size = torch.tensor([depth_camera.width - 1, depth_camera.height - 1], dtype=points.dtype, device=points.device)
-        candidates &= in_front[0] & ((projected[0] >= margin) & (projected[0] <= size - margin)).all(dim=-1)
-    surface_pixels = torch.nonzero(candidates.cpu()).reshape(-1)
-    if depth_pixels > 0 and len(surface_pixels) > 0:
-        drawn = draw_uniformly(surface_pixels, depth_pixels, generator).to(points.device)
-        depth_points = torch.cat((points[drawn], torch.ones(len(drawn), 1, dtype=points.dtype, device=points.device)), dim=-1).float()
+    depth_points = reference_depth_points(points, seen, pose, depth_pixels, depth_camera, generator)
     return WarpReference(colours[index].float(), homogeneous.float(), len(pixels), depth_points)
+
+
+def reference_depth_points(
+    points: torch.Tensor, seen: torch.Tensor, pose: torch.Tensor, count: int, depth_camera: PinholeIntrinsics | None, generator: torch.Generator
+) -> torch.Tensor:
+    """``count`` of the reference render's surface points for the depth term (:func:`render_reference`).
+
+    Args:
+        points: (R, 3) the render's expected surface points; seen: (R,) bool, those that met a surface.
+        pose: (4, 4) the reference pose, where the depth camera sits.
+    Returns:
+        (count, 4) float32 homogeneous points (w = 1), drawn uniformly among the seen ones that project
+        at least ``DEPTH_BORDER`` inside the depth image (all seen ones without ``depth_camera``);
+        (0, 4) when ``count`` is 0 or none qualifies.
+    """
+    if count == 0:
+        return torch.zeros(0, 4)
+    candidates = seen.clone()
+    homogeneous = torch.cat((points, torch.ones_like(points[:, :1])), dim=-1)
+    if depth_camera is not None:
+        projected, in_front = project_points(pose[None].to(points), homogeneous, depth_camera)
+        margin = torch.tensor([depth_camera.width, depth_camera.height], dtype=points.dtype, device=points.device) * DEPTH_BORDER
+        far_corner = torch.tensor([depth_camera.width - 1, depth_camera.height - 1], dtype=points.dtype, device=points.device) - margin
+        candidates &= in_front[0] & ((projected[0] >= margin) & (projected[0] <= far_corner)).all(dim=-1)
+    eligible = torch.nonzero(candidates.cpu()).reshape(-1)
+    if len(eligible) == 0:
+        return torch.zeros(0, 4)
+    return homogeneous[draw_uniformly(eligible, count, generator).to(points.device)].float()
 
 
 def beyond_an_edge(depth: torch.Tensor, margin: float, radius: int) -> torch.Tensor:
