@@ -1,7 +1,8 @@
 """The codec: pydantic messages as msgpack envelopes, images as a msgpack header plus raw pixels.
 
 Envelope (every message but images): ``msgpack({"v": SCHEMA_VERSION, "type": name, "body": {...}})``.
-Image frame: ``u32 big-endian header length | msgpack envelope of an ImageHeader | H·W·3 bytes``.
+Image frame: ``u32 big-endian header length | msgpack envelope of an ImageHeader | H·W·3 bytes``,
+then, for an RGB-D frame (the header's ``depth`` set), ``Hd·Wd·2`` bytes of little-endian uint16 millimetres.
 A receiver checks the version, the type and the payload size; every failure raises
 :class:`DecodeError` whose ``kind`` names the failure (for the services' bad-message counters).
 """
@@ -67,21 +68,35 @@ def decode(data: bytes, expected: type[Message]) -> Message:
     return _open_envelope(data, expected)
 
 
-def encode_image(header: ImageHeader, pixels: np.ndarray) -> bytes:
-    """Header + pixels (H, W, 3) uint8 in the header's encoding -> frame bytes."""
+def encode_image(header: ImageHeader, pixels: np.ndarray, depth: np.ndarray | None = None) -> bytes:
+    """Header + pixels (H, W, 3) uint8 in the header's encoding (+ depth (Hd, Wd) uint16 millimetres
+    when the header declares a depth image) -> frame bytes."""
     if header.encoding not in IMAGE_ENCODINGS:
         raise ValueError(f"image encoding {header.encoding!r}: expected one of {IMAGE_ENCODINGS}")
     if pixels.dtype != np.uint8 or pixels.shape != (header.height, header.width, 3):
         raise ValueError(f"image pixels: expected uint8 of shape ({header.height}, {header.width}, 3), got {pixels.dtype} {pixels.shape}")
+    if (header.depth is None) != (depth is None):
+        raise ValueError(f"depth image {'given' if depth is not None else 'missing'}: expected one exactly when the header declares depth")
+    tail = b""
+    if header.depth is not None and depth is not None:
+        if depth.dtype != np.uint16 or depth.shape != (header.depth.height, header.depth.width):
+            raise ValueError(f"depth pixels: expected uint16 of shape ({header.depth.height}, {header.depth.width}), got {depth.dtype} {depth.shape}")
+        tail = np.ascontiguousarray(depth, dtype="<u2").tobytes()
     head = encode(header)
-    return _LENGTH.pack(len(head)) + head + np.ascontiguousarray(pixels).tobytes()
+    return _LENGTH.pack(len(head)) + head + np.ascontiguousarray(pixels).tobytes() + tail
 
 
 def decode_image(data: bytes, max_pixels: int | None = None) -> tuple[ImageHeader, np.ndarray]:
-    """Frame bytes -> (header, pixels (H, W, 3) uint8 as RGB).
+    """Frame bytes -> (header, pixels (H, W, 3) uint8 as RGB); an RGB-D frame's depth is checked and left out (see :func:`decode_rgbd`)."""
+    header, pixels, _ = decode_rgbd(data, max_pixels)
+    return header, pixels
+
+
+def decode_rgbd(data: bytes, max_pixels: int | None = None) -> tuple[ImageHeader, np.ndarray, np.ndarray | None]:
+    """Frame bytes -> (header, pixels (H, W, 3) uint8 as RGB, depth (Hd, Wd) uint16 millimetres or None).
 
     Args:
-        max_pixels: refuse headers declaring more than this many pixels (None: no limit).
+        max_pixels: refuse headers declaring more than this many pixels, colour or depth (None: no limit).
 
     Raises:
         DecodeError: as :func:`decode`, plus ``image_encoding``, ``image_too_large`` and ``image_size``.
@@ -94,11 +109,19 @@ def decode_image(data: bytes, max_pixels: int | None = None) -> tuple[ImageHeade
     header = _open_envelope(data[_LENGTH.size : _LENGTH.size + head_length], ImageHeader)
     if header.encoding not in IMAGE_ENCODINGS:
         raise DecodeError("image_encoding", f"encoding {header.encoding!r}, expected one of {IMAGE_ENCODINGS}")
-    if max_pixels is not None and header.width * header.height > max_pixels:
-        raise DecodeError("image_too_large", f"{header.width}×{header.height} pixels, at most {max_pixels} accepted")
+    sizes = [(header.width, header.height)] + ([(header.depth.width, header.depth.height)] if header.depth is not None else [])
+    for width, height in sizes:
+        if max_pixels is not None and width * height > max_pixels:
+            raise DecodeError("image_too_large", f"{width}×{height} pixels, at most {max_pixels} accepted")
     payload = memoryview(data)[_LENGTH.size + head_length :]
-    expected = header.width * header.height * 3
-    if len(payload) != expected:
-        raise DecodeError("image_size", f"{len(payload)} pixel bytes, expected {expected} for {header.width}×{header.height}×3")
-    pixels = np.frombuffer(payload, dtype=np.uint8).reshape(header.height, header.width, 3)
-    return header, pixels[..., ::-1].copy() if header.encoding == "bgr8" else pixels.copy()
+    colour_bytes = header.width * header.height * 3
+    depth_bytes = header.depth.width * header.depth.height * 2 if header.depth is not None else 0
+    if len(payload) != colour_bytes + depth_bytes:
+        layout = f"{header.width}×{header.height}×3" + (f" + {header.depth.width}×{header.depth.height}×2 (depth)" if header.depth is not None else "")
+        raise DecodeError("image_size", f"{len(payload)} pixel bytes, expected {colour_bytes + depth_bytes} for {layout}")
+    pixels = np.frombuffer(payload[:colour_bytes], dtype=np.uint8).reshape(header.height, header.width, 3)
+    pixels = pixels[..., ::-1].copy() if header.encoding == "bgr8" else pixels.copy()
+    if header.depth is None:
+        return header, pixels, None
+    depth = np.frombuffer(payload[colour_bytes:], dtype="<u2").reshape(header.depth.height, header.depth.width).astype(np.uint16)
+    return header, pixels, depth

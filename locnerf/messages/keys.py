@@ -20,7 +20,12 @@ class Topic:
     description: str
 
 
-IMAGE = Topic("sensors/image", schemas.ImageHeader.__name__ + " + raw pixels", "sensor_ingest", "newest camera frame")
+IMAGE = Topic(
+    "sensors/image",
+    schemas.ImageHeader.__name__ + " + raw pixels (+ raw depth pixels)",
+    "sensor_ingest",
+    "newest camera frame (RGB-D cameras: with its depth image)",
+)
 ODOMETRY = Topic("sensors/odom", schemas.Odometry.__name__, "sensor_ingest", "VIO body pose, 15 Hz")
 GROUND_TRUTH = Topic("sensors/ground_truth", schemas.PoseStamped.__name__, "sensor_ingest", "true camera pose when the source knows it")
 POSE = Topic("filter/pose", schemas.PoseEstimate.__name__, "filter_loop", "pose estimate at the odometry rate")

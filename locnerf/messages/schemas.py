@@ -70,18 +70,46 @@ class Stamped(_Wire):
         return value
 
 
+def _check_size(width: int, height: int, intrinsics: PinholeIntrinsics, name: str) -> None:
+    if (width, height) != (intrinsics.width, intrinsics.height):
+        raise ValueError(f"{name} size {width}×{height} does not match the intrinsics {intrinsics.width}×{intrinsics.height}")
+
+
+DEPTH_ENCODING = "16UC1"
+"""Depth pixels on the wire: uint16 millimetres along the depth camera's optical axis, 0 = no reading, little-endian."""
+
+
+class DepthHeader(_Wire):
+    """The depth image of an RGB-D frame, whose pixels follow the colour pixels (see :mod:`.codec`).
+
+    The depth camera sits at the colour camera's pose (as RGB-D data sets pose both with one pose)
+    with its own intrinsics; its pixels are never resampled onto the colour grid."""
+
+    encoding: str = Field(DEPTH_ENCODING, description="Pixel layout: 16UC1 (row-major, H×W uint16 millimetres, little-endian, 0 = no reading).")
+    width: int = Field(gt=0, description="Depth image width, pixels.")
+    height: int = Field(gt=0, description="Depth image height, pixels.")
+    intrinsics: PinholeIntrinsics = Field(description="Depth camera intrinsics (OpenCV pixel-centre convention).")
+
+    @model_validator(mode="after")
+    def _valid(self) -> DepthHeader:
+        if self.encoding != DEPTH_ENCODING:
+            raise ValueError(f"depth encoding {self.encoding!r}: expected {DEPTH_ENCODING!r}")
+        _check_size(self.width, self.height, self.intrinsics, "depth image")
+        return self
+
+
 class ImageHeader(Stamped):
-    """Header of an image frame; the pixels follow as raw bytes (see :mod:`.codec`)."""
+    """Header of an image frame; the pixels follow as raw bytes (see :mod:`.codec`), then the depth pixels of an RGB-D frame."""
 
     encoding: str = Field(description="Pixel layout of the payload: rgb8 or bgr8 (row-major, H×W×3 uint8).")
     width: int = Field(gt=0, description="Image width, pixels.")
     height: int = Field(gt=0, description="Image height, pixels.")
     intrinsics: PinholeIntrinsics = Field(description="Camera intrinsics of this frame (OpenCV pixel-centre convention).")
+    depth: DepthHeader | None = Field(None, description="The depth image taken with this frame (RGB-D cameras); None: colour only.")
 
     @model_validator(mode="after")
     def _size_matches_intrinsics(self) -> ImageHeader:
-        if (self.width, self.height) != (self.intrinsics.width, self.intrinsics.height):
-            raise ValueError(f"image size {self.width}×{self.height} does not match the intrinsics {self.intrinsics.width}×{self.intrinsics.height}")
+        _check_size(self.width, self.height, self.intrinsics, "image")
         return self
 
 
@@ -194,6 +222,31 @@ class WarpRequest(_Wire):
         return value
 
 
+class DepthRequest(_Wire):
+    """The depth term of an update on an RGB-D frame (:mod:`locnerf.filter.depth_measurement`); every shard carries the same."""
+
+    image: bytes = Field(description="The observed depth image: H×W uint16 millimetres, little-endian, 0 = no reading (H, W of `intrinsics`).")
+    intrinsics: PinholeIntrinsics = Field(description="The depth camera (at the particle pose).")
+    measurement: MeasurementConfig = Field(description="The measurement settings (its `depth` must be set).")
+    pixels: list[list[float]] = Field(
+        description="(M, 2) depth pixels (u, v) rendered from every pose; re-projection instead draws its points from the reference render."
+    )
+
+    @model_validator(mode="after")
+    def _valid(self) -> DepthRequest:
+        if self.measurement.depth is None:
+            raise ValueError("measurement.depth is None: expected the depth settings of an RGB-D update")
+        expected = self.intrinsics.width * self.intrinsics.height * 2
+        if len(self.image) != expected:
+            raise ValueError(
+                f"depth request: image of {len(self.image)} bytes, expected {expected} for {self.intrinsics.width}×{self.intrinsics.height} uint16"
+            )
+        size = (self.intrinsics.width, self.intrinsics.height)
+        if not self.pixels or any(len(p) != 2 or not (0 <= p[0] < size[0] and 0 <= p[1] < size[1]) for p in self.pixels):
+            raise ValueError(f"depth request: expected 1 or more pixels (u, v) inside the {size[0]}×{size[1]} depth image")
+        return self
+
+
 class UpdateRequest(_Wire):
     """One shard of an update: render ``pixels`` from every pose and compare with ``observed_rgb``."""
 
@@ -212,6 +265,7 @@ class UpdateRequest(_Wire):
         description="Exposure-invariant likelihood: bounds of the per-particle gain fitted to the observed pixels (measurement.exposure_gain_range); None: off.",
     )
     warp: WarpRequest | None = Field(None, description="Re-projection instead of rendering; a worker whose map cannot place surfaces renders `pixels` instead.")
+    depth: DepthRequest | None = Field(None, description="The depth term of an RGB-D frame, added to the colour term; None: colour only.")
 
     @model_validator(mode="after")
     def _shapes(self) -> UpdateRequest:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from locnerf.data.posed_images import PosedImages
 from locnerf.render.camera import PinholeIntrinsics
 
 
@@ -24,12 +25,22 @@ class OdometryEvent:
 
 
 @dataclass(frozen=True)
+class DepthFrame:
+    """The depth image taken with a camera frame (RGB-D cameras): ``millimetres`` (Hd, Wd) uint16
+    along the depth camera's optical axis, 0 = no reading, seen with ``intrinsics`` from the colour camera's pose."""
+
+    millimetres: np.ndarray
+    intrinsics: PinholeIntrinsics
+
+
+@dataclass(frozen=True)
 class ImageEvent:
-    """A camera frame at ``stamp``: ``pixels`` (H, W, 3) uint8 RGB."""
+    """A camera frame at ``stamp``: ``pixels`` (H, W, 3) uint8 RGB, and its ``depth`` from an RGB-D camera (None: colour only)."""
 
     stamp: float
     pixels: np.ndarray
     intrinsics: PinholeIntrinsics
+    depth: DepthFrame | None = None
 
 
 @dataclass(frozen=True)
@@ -41,6 +52,23 @@ class GroundTruthEvent:
 
 
 SensorEvent = OdometryEvent | ImageEvent | GroundTruthEvent
+
+
+def depth_millimetres(depth: torch.Tensor, scale: float = 1.0) -> np.ndarray:
+    """A depth image (Hd, Wd) in map units (``scale`` map units per metre, 0 = no reading) -> contiguous
+    (Hd, Wd) uint16 millimetres, rounded; readings beyond the 65.534 m that uint16 holds become 0 (no reading)."""
+    if depth.ndim != 2:
+        raise ValueError(f"depth image: expected shape (H, W), got {tuple(depth.shape)}")
+    millimetres = torch.round(depth.double().cpu() / scale * 1000.0)
+    millimetres = torch.where((millimetres > 0) & (millimetres < 65535), millimetres, torch.zeros_like(millimetres))
+    return np.ascontiguousarray(millimetres.to(torch.int32).numpy().astype(np.uint16))
+
+
+def posed_depth_frame(frames: PosedImages, index: int) -> DepthFrame | None:
+    """The depth image of frame ``index`` of a posed sequence as sent (uint16 millimetres), or None without depth."""
+    if frames.depths is None or frames.depth_intrinsics is None:
+        return None
+    return DepthFrame(depth_millimetres(frames.depths[index], frames.normalization.scale), frames.depth_intrinsics)
 
 
 def rgb8(image: torch.Tensor) -> np.ndarray:

@@ -1,6 +1,7 @@
 """A simulated run as a time-ordered stream of sensor events, the way the ingest service publishes it.
 
-Every odometry stamp yields its ground truth, then its odometry, then (on image stamps) the image,
+Every odometry stamp yields its ground truth, then its odometry, then (on image stamps) the image
+(with its depth image when the path has a depth camera: an RGB-D sequence),
 so a filter has predicted to an image's stamp before it corrects with it. Poses are metric (the
 wire carries metric poses); images are rendered lazily, segment by segment
 (:func:`locnerf.sim.scenario.scenario_segments`), and quantised to 8-bit RGB. The data are those
@@ -16,7 +17,7 @@ import numpy as np
 import torch
 
 from locnerf.field.protocol import MapNormalization
-from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent, rgb8
+from locnerf.sim.events import DepthFrame, GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent, depth_millimetres, rgb8
 from locnerf.sim.paths import CameraPath
 from locnerf.sim.scenario import ScenarioConfig, TrackingScenario, scenario_segments
 
@@ -33,7 +34,7 @@ def scenario_events(segments: Iterable[TrackingScenario], image_generator: torch
     """
     if distinct_frames < 0:
         raise ValueError(f"distinct_frames {distinct_frames}: expected >= 0 (0 renders every image)")
-    rendered: list[np.ndarray] = []
+    rendered: list[tuple[np.ndarray, DepthFrame | None]] = []
     images_sent = 0
     for segment in segments:
         image_ticks = set(segment.image_ticks)
@@ -43,13 +44,19 @@ def scenario_events(segments: Iterable[TrackingScenario], image_generator: torch
             if tick not in image_ticks:
                 continue
             if distinct_frames and len(rendered) == distinct_frames:
-                pixels = rendered[images_sent % distinct_frames]
+                pixels, depth = rendered[images_sent % distinct_frames]
             else:
-                pixels = rgb8(segment.image(tick, image_generator))
+                pixels, depth = rgb8(segment.image(tick, image_generator)), _depth_frame(segment, tick)
                 if distinct_frames:
-                    rendered.append(pixels)
+                    rendered.append((pixels, depth))
             images_sent += 1
-            yield ImageEvent(stamp, pixels, segment.path.intrinsics)
+            yield ImageEvent(stamp, pixels, segment.path.intrinsics, depth)
+
+
+def _depth_frame(segment: TrackingScenario, tick: int) -> DepthFrame | None:
+    """The depth image taken with the image at ``tick`` (metres on the path) as sent, or None without a depth camera."""
+    depth = segment.depth(tick)
+    return None if depth is None else DepthFrame(depth_millimetres(depth.depth), depth.intrinsics)
 
 
 def simulated_events(path: CameraPath, config: ScenarioConfig, distinct_frames: int = 0) -> Iterator[SensorEvent]:

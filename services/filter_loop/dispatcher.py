@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import torch
 
 from locnerf.filter.localizer import UpdateSnapshot
-from locnerf.messages.schemas import UpdateRequest, UpdateResult, WarpRequest
+from locnerf.messages.schemas import DepthRequest, UpdateRequest, UpdateResult, WarpRequest
 from locnerf.render.camera import PinholeIntrinsics
 
 logger = logging.getLogger(__name__)
@@ -133,11 +133,12 @@ class UpdateDispatcher:
         image: torch.Tensor | None = None,
         exposure_gain_range: tuple[float, float] | None = None,
         warp: WarpRequest | None = None,
+        depth: DepthRequest | None = None,
     ) -> list[AddressedRequest]:
         """Split ``snapshot`` over the live workers; pixels (M, 2), observed_rgb (M, 3); ``image``
         (H, W, 3) is kept until the update completes (for kidnapping recovery); ``exposure_gain_range``
-        asks the workers for the exposure-invariant likelihood (None: off); ``warp`` for re-projection
-        (every shard gets the same).
+        asks the workers for the exposure-invariant likelihood (None: off); ``warp`` for re-projection,
+        ``depth`` for the depth term of an RGB-D frame (every shard gets the same of both).
 
         Raises:
             RuntimeError: if :attr:`can_start` is false.
@@ -158,6 +159,7 @@ class UpdateDispatcher:
             "exponent": exponent,
             "exposure_gain_range": exposure_gain_range,
             "warp": warp,
+            "depth": depth,
         }
         parts = torch.tensor_split(torch.arange(len(ids)), min(len(names), len(ids)))
         for index, (part, worker) in enumerate(zip(parts, names)):
@@ -171,6 +173,8 @@ class UpdateDispatcher:
         self.counters["updates_started"] += 1
         if warp is not None:
             self.counters["updates_warped"] += 1
+        if depth is not None:
+            self.counters["updates_with_depth"] += 1
         return [(shard.worker, shard.request) for shard in update.shards]
 
     def receive(self, result: UpdateResult, now: float) -> CompletedUpdate | None:

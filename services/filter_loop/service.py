@@ -24,11 +24,12 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.localizer import Localizer, MergeOutcome, SearchRegion
-from locnerf.filter.measurement import observed_colours, sample_pixels_of_image
+from locnerf.filter.measurement import MeasurementConfig, observed_colours, sample_pixels_of_image
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.messages import keys
-from locnerf.messages.codec import DecodeError, decode, decode_image, encode
+from locnerf.messages.codec import DecodeError, decode, decode_rgbd, encode
 from locnerf.messages.schemas import (
+    DepthRequest,
     FilterState,
     FilterStatus,
     GlobalLocalizationCommand,
@@ -45,6 +46,7 @@ from services.filter_loop.frames import FilterFrames
 from services.filter_loop.loop_state import LoopStateMachine
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.persistence import PosePersistence
+from services.rgbd import depth_request
 from services.runtime import BadMessages, RateMeter
 
 logger = logging.getLogger(__name__)
@@ -140,7 +142,9 @@ class FilterLoop:
         self.inbox_dropped = 0
         self.odometry_restarts = 0
         self._stepped_back: list[float] = []
-        self._image: tuple[ImageHeader, np.ndarray] | None = None
+        self._image: tuple[ImageHeader, np.ndarray, np.ndarray | None] | None = None
+        self._warned_no_depth = False
+        self.depth_without_readings = 0
         self._image_uses = 0
         self._last_particles = self._last_status = -float("inf")
         self._start()
@@ -259,7 +263,7 @@ class FilterLoop:
     def handle_image(self, payload: bytes) -> Outgoing:
         """Keep the newest valid image for the next update."""
         try:
-            header, pixels = decode_image(payload, self.config.max_image_pixels)
+            header, pixels, depth = decode_rgbd(payload, self.config.max_image_pixels)
         except DecodeError as error:
             self.bad.record(error.kind, error.reason)
             return []
@@ -273,7 +277,7 @@ class FilterLoop:
             return []
         if self._image is not None and self._image_uses == 0:
             self.images_replaced += 1
-        self._image = (header, pixels)
+        self._image = (header, pixels, depth)
         self._image_uses = 0
         self.rates["image"].tick()
         return []
@@ -372,7 +376,7 @@ class FilterLoop:
         return out
 
     def _start_update(self, now: float) -> Outgoing:
-        header, pixels = self._image
+        header, pixels, depth = self._image
         self._image_uses += 1
         if self._image_uses >= self.config.updates_per_image:
             self._image = None
@@ -395,8 +399,28 @@ class FilterLoop:
         if reference is not None:
             seed = int(torch.randint(2**62, (1,), generator=localizer.generator))
             warp = WarpRequest(reference_pose=reference.tolist(), seed=seed, measurement=measurement, image=np.ascontiguousarray(pixels).tobytes())
-        addressed = self.dispatcher.start(snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept, measurement.exposure_gain_range, warp)
+        depth_part = self._depth_part(header, depth, measurement, localizer.generator)
+        addressed = self.dispatcher.start(
+            snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept, measurement.exposure_gain_range, warp, depth_part
+        )
         return self._requests(addressed)
+
+    def _depth_part(self, header: ImageHeader, depth: np.ndarray | None, measurement: MeasurementConfig, generator: torch.Generator) -> DepthRequest | None:
+        """The depth term of an update when the localizer weighs depth and the frame has it (warned once when it has not)."""
+        if measurement.depth is None:
+            return None
+        if depth is None or header.depth is None:
+            if not self._warned_no_depth:
+                logger.warning("measurement.depth is set but the images carry no depth: weighing colour only")
+                self._warned_no_depth = True
+            return None
+        try:
+            return depth_request(depth, header.depth, measurement, self.frames.normalization.scale, generator)
+        except ValueError as error:
+            if self.depth_without_readings == 0:
+                logger.warning("an RGB-D frame's depth is left out (further ones are only counted): %s", error)
+            self.depth_without_readings += 1
+            return None
 
     def metric_particle_poses(self) -> torch.Tensor:
         """(N, 4, 4) float64 camera poses of the particles, metric, in the map's world frame (needs particles)."""
@@ -422,6 +446,7 @@ class FilterLoop:
             "inbox_dropped": self.inbox_dropped,
             "images_received": self.images_received,
             "state_save_failures": self.persistence.failures,
+            "depth_without_readings": self.depth_without_readings,
         }
         counts |= dict(self.dispatcher.counters)
         counts |= {f"bad_{kind}": count for kind, count in self.bad.counts.items()}

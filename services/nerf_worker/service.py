@@ -9,10 +9,12 @@ import numpy as np
 import torch
 
 from locnerf.field.protocol import RadianceMap, surface_renderer
+from locnerf.filter.depth_measurement import rendered_depth_log_likelihoods, warped_depth_log_likelihoods
 from locnerf.filter.measurement import particle_log_likelihoods
-from locnerf.filter.warp import render_reference, warp_log_likelihoods
+from locnerf.filter.warp import WarpReference, render_reference, warp_log_likelihoods
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
-from locnerf.messages.schemas import UpdateRequest, UpdateResult
+from locnerf.messages.schemas import DepthRequest, UpdateRequest, UpdateResult
+from services.rgbd import depth_observation
 
 logger = logging.getLogger(__name__)
 
@@ -34,12 +36,13 @@ class NerfWorker:
         self.worker_id = worker_id
         self.render_surface = surface_renderer(radiance_map)
         self._warned_warp = False
+        self._warned_depth = False
 
     def handle(self, request: UpdateRequest) -> UpdateResult:
         """Log-likelihoods of the request's particles (eq. 5 of the paper, log space).
 
         Raises:
-            RequestError: poses that are not rigid transforms, pixels outside the image.
+            RequestError: poses that are not rigid transforms, pixels outside the image, a depth part the depth term refuses.
         """
         started = time.perf_counter()
         device = self.map.device
@@ -48,13 +51,18 @@ class NerfWorker:
             validate_poses(poses, name="request poses")
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
+        poses = poses.to(device)
+        reference = None
         if request.warp is not None and self.render_surface is not None:
-            log_likelihoods = self._warp(request, poses.to(device))
+            reference = self._reference(request)
+            log_likelihoods = warp_log_likelihoods(poses, reference, self._image(request), request.intrinsics, request.exponent, request.exposure_gain_range)
         else:
             if request.warp is not None and not self._warned_warp:
                 logger.warning("the map cannot place surfaces (an NDC or MLP map): re-projection requests are rendered from every pose instead")
                 self._warned_warp = True
-            log_likelihoods = self._render(request, poses.to(device))
+            log_likelihoods = self._render(request, poses)
+        if request.depth is not None:
+            log_likelihoods = log_likelihoods + self._depth(request.depth, poses, reference).to(log_likelihoods)
         return UpdateResult(
             request_id=request.request_id,
             shard=request.shard,
@@ -84,16 +92,42 @@ class NerfWorker:
             exposure_gain_range=request.exposure_gain_range,
         )
 
-    def _warp(self, request: UpdateRequest, poses: torch.Tensor) -> torch.Tensor:
-        """Eq. 5 by re-projecting the reference render into every pose (N, 4, 4) -> (N,) (:mod:`locnerf.filter.warp`)."""
-        warp = request.warp
+    def _image(self, request: UpdateRequest) -> torch.Tensor:
+        """The warp request's observed image (H, W, 3) in [0, 1] on the map's device."""
         size = request.intrinsics
+        pixels = np.frombuffer(request.warp.image, dtype=np.uint8).reshape(size.height, size.width, 3)
+        return torch.from_numpy(pixels.copy()).to(self.map.device).float() / 255.0
+
+    def _reference(self, request: UpdateRequest) -> WarpReference:
+        """The reference render of a re-projection request (:mod:`locnerf.filter.warp`): the same on every shard (same pose and seed)."""
+        warp = request.warp
         reference_pose = torch.tensor(warp.reference_pose, dtype=torch.float64)
         try:
             validate_poses(reference_pose, name="warp reference pose")
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
-        pixels = np.frombuffer(warp.image, dtype=np.uint8).reshape(size.height, size.width, 3)
-        image = torch.from_numpy(pixels.copy()).to(self.map.device).float() / 255.0
-        reference = render_reference(self.render_surface, reference_pose, size, warp.measurement, torch.Generator().manual_seed(warp.seed))
-        return warp_log_likelihoods(poses, reference, image, size, request.exponent, request.exposure_gain_range)
+        depth = request.depth
+        depth_pixels = depth.measurement.depth.pixels if depth is not None and depth.measurement.depth is not None else 0
+        depth_camera = depth.intrinsics if depth is not None else None
+        generator = torch.Generator().manual_seed(warp.seed)
+        return render_reference(self.render_surface, reference_pose, request.intrinsics, warp.measurement, generator, depth_pixels, depth_camera)
+
+    def _depth(self, depth: DepthRequest, poses: torch.Tensor, reference: WarpReference | None) -> torch.Tensor:
+        """The depth term (N,) of an RGB-D frame for poses (N, 4, 4): the reference's depth points
+        re-projected when the colour term was, else the request's depth pixels rendered from every
+        pose; zeros (colour only, warned once) when the map cannot place surfaces."""
+        if self.render_surface is None:
+            if not self._warned_depth:
+                logger.warning("the map cannot place surfaces (an NDC or MLP map): the depth term of RGB-D requests is left out")
+                self._warned_depth = True
+            return torch.zeros(poses.shape[0], dtype=torch.float32, device=poses.device)
+        depth_mm = np.frombuffer(depth.image, dtype="<u2").reshape(depth.intrinsics.height, depth.intrinsics.width)
+        config = depth.measurement.depth
+        try:
+            observation = depth_observation(depth_mm, depth.intrinsics, self.map.normalization.scale, self.map.device)
+            if reference is not None:
+                return warped_depth_log_likelihoods(poses, reference.depth_points, observation, config)
+            pixels = torch.tensor(depth.pixels, dtype=torch.float32).reshape(-1, 2).to(self.map.device)
+            return rendered_depth_log_likelihoods(poses, observation, pixels, self.render_surface, config, depth.measurement.ray_chunk)
+        except ValueError as error:  # a depth part the measurement refuses is a bad request, not a reason to stop
+            raise RequestError(f"depth part: {error}") from None

@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
 from locnerf.geometry.se3 import interpolate_pose
-from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent, rgb8
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent, posed_depth_frame, rgb8
 from locnerf.sim.sensors import VioConfig, simulate_odometry
 
 
@@ -45,7 +45,7 @@ def replay_events(sequence: PosedImages, config: ReplaySourceConfig, generator: 
     timeline = [(stamp, 0, i) for i, stamp in enumerate(odometry_stamps)] + [(k / config.frame_rate, 1, k) for k in range(len(sequence))]
     for stamp, is_frame, index in sorted(timeline):
         if is_frame:
-            yield ImageEvent(stamp, rgb8(sequence.images[index]), sequence.intrinsics)
+            yield ImageEvent(stamp, rgb8(sequence.images[index]), sequence.intrinsics, posed_depth_frame(sequence, index))
             continue
         yield GroundTruthEvent(stamp, truth[index])
         yield OdometryEvent(stamp, odometry[index])

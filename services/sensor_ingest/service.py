@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterable, Iterator
 
 from locnerf.messages import keys
 from locnerf.messages.codec import encode, encode_image
-from locnerf.messages.schemas import ImageHeader, Odometry, PoseStamped
+from locnerf.messages.schemas import DepthHeader, ImageHeader, Odometry, PoseStamped
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 
 
@@ -19,8 +19,12 @@ def event_message(robot_id: str, event: SensorEvent, camera_frame: str = "camera
         return keys.key(robot_id, keys.GROUND_TRUTH), encode(PoseStamped(stamp=event.stamp, frame_id="map", T_world_cam=event.T_world_cam.tolist()))
     if isinstance(event, ImageEvent):
         height, width = event.pixels.shape[:2]
-        header = ImageHeader(stamp=event.stamp, frame_id=camera_frame, encoding="rgb8", width=width, height=height, intrinsics=event.intrinsics)
-        return keys.key(robot_id, keys.IMAGE), encode_image(header, event.pixels)
+        depth = event.depth
+        depth_header = None if depth is None else DepthHeader(width=depth.millimetres.shape[1], height=depth.millimetres.shape[0], intrinsics=depth.intrinsics)
+        header = ImageHeader(
+            stamp=event.stamp, frame_id=camera_frame, encoding="rgb8", width=width, height=height, intrinsics=event.intrinsics, depth=depth_header
+        )
+        return keys.key(robot_id, keys.IMAGE), encode_image(header, event.pixels, None if depth is None else depth.millimetres)
     raise TypeError(f"unknown sensor event {type(event).__name__}")
 
 

@@ -10,6 +10,7 @@ bound tighter than the live run's own timeout: the suite runs on a loaded 2-core
 
 from __future__ import annotations
 
+import ast
 import json
 import logging
 import math
@@ -111,10 +112,10 @@ def test_relocalization_on_test_frames_scores_every_trial(
     assert seeded == (["keyframe start: 540 of 600 particles re-drawn around 8 matching keyframes"] * 2 if "keyframes" in config else [])
 
 
-def tracking_argv(tiny_kitchen_map: Path, seconds: str) -> list[str]:
+def tracking_argv(tiny_kitchen_map: Path, seconds: str, config: str = "kitchen_live.toml") -> list[str]:
     """``eval tracking`` on the test sequence (seq-02) at 40×30, at the live runs' speed and with their
-    configuration, for ``seconds`` of sensor time; convergence loosened to 0.2 m / 10° held 0.5 s
-    for the tiny map."""
+    configuration (``config`` in configs/), for ``seconds`` of sensor time; convergence loosened to
+    0.2 m / 10° held 0.5 s for the tiny map."""
     return [
         "eval",
         "tracking",
@@ -131,7 +132,7 @@ def tracking_argv(tiny_kitchen_map: Path, seconds: str) -> list[str]:
         "--duration",
         seconds,
         "--config",
-        str(REPO_ROOT / "configs" / "kitchen_live.toml"),
+        str(REPO_ROOT / "configs" / config),
         "--converged-translation",
         "0.2",
         "--converged-rotation",
@@ -174,7 +175,10 @@ def test_offline_tracking_scores_every_odometry_stamp(tiny_kitchen_map: Path, ca
     check_phase(report["start"], bound=0.5)
 
 
-def test_live_tracking_through_the_services_reports_rates_and_errors(tiny_kitchen_map: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("config", ["kitchen_live.toml", "kitchen_live_rgbd.toml"])
+def test_live_tracking_through_the_services_reports_rates_and_errors(
+    config: str, tiny_kitchen_map: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """5 s of sensor time through ingest → filter → 1 worker over loopback Zenoh, global start, 5 Hz images.
 
     Measured when written (seed 0, ~15 s of wall time): 76 poses at 15.0 Hz, realtime factor 1.00,
@@ -182,8 +186,10 @@ def test_live_tracking_through_the_services_reports_rates_and_errors(tiny_kitche
     600 converged particles of 2026-11-25: 76 poses, 15.0 Hz, 1.00, 2.8 updates per second, converged after
     1.8 s, 0.23 m / 6.7°, largest 0.40 m). Bounds, loose for a loaded
     machine: realtime factor in (0.5, 1.5), pose rate 10–20 Hz, a pose for at least 80 % of the
-    odometry messages; the medians, when the filter converged, under 0.5 m and 30°."""
-    argv = tracking_argv(tiny_kitchen_map, "5") + ["--live", "--image-rate", "5", "--workers", "1", "--logs", str(tmp_path)]
+    odometry messages; the medians, when the filter converged, under 0.5 m and 30°. With the RGB-D
+    configuration the ingest sends each image's depth and every update carries it (the filter's exit
+    counters: as many updates with depth as updates started)."""
+    argv = tracking_argv(tiny_kitchen_map, "5", config) + ["--live", "--image-rate", "5", "--workers", "1", "--logs", str(tmp_path)]
     report = run_cli(argv, capsys)
     headline = ("translation_median", "rotation_median_deg", "converged_after_s", "realtime_factor", "update_hz", "pose_hz")
     assert set(headline) <= set(report) and report["live"] and report["workers"] == 1 and report["image_rate"] == 5.0
@@ -192,6 +198,9 @@ def test_live_tracking_through_the_services_reports_rates_and_errors(tiny_kitche
     assert 60 <= report["odometry_messages"] <= 76 and report["poses"] >= 0.8 * report["odometry_messages"], report
     assert report["stamps"] >= 0.8 * report["odometry_messages"]  # poses scored against the ground truth
     assert 600 <= report["particles_min"] <= report["particles_max"] <= 2400  # KLD-sampling's bounds in kitchen_live.toml
+    exit_counters = [line for line in (tmp_path / "filter.log").read_text().splitlines() if "counters at exit" in line]
+    counters = ast.literal_eval(exit_counters[-1].split("counters at exit: ", 1)[1])
+    assert counters["updates_started"] > 0 and counters.get("updates_with_depth", 0) == (counters["updates_started"] if "rgbd" in config else 0), counters
     converged = report["converged_after_s"] is not None
     assert converged == report["start"]["converged"]
     if converged:

@@ -150,3 +150,44 @@ def test_image_headers_declaring_too_many_pixels_are_refused_unread():
     with pytest.raises(codec.DecodeError) as error:
         codec.decode_image(frame, max_pixels=11)
     assert error.value.kind == "image_too_large"
+
+
+DEPTH_INTRINSICS = PinholeIntrinsics(fx=11.0, fy=11.0, cx=1.0, cy=1.0, width=2, height=2)
+
+
+def _rgbd_header() -> schemas.ImageHeader:
+    return _header().model_copy(update={"depth": schemas.DepthHeader(width=2, height=2, intrinsics=DEPTH_INTRINSICS)})
+
+
+def test_rgbd_frame_round_trips_its_depth_little_endian():
+    pixels = np.arange(36, dtype=np.uint8).reshape(3, 4, 3)
+    depth = np.array([[0, 1], [1000, 65534]], dtype=np.uint16)
+    frame = codec.encode_image(_rgbd_header(), pixels, depth)
+    assert frame[-8:] == depth.astype("<u2").tobytes()
+    header, decoded, decoded_depth = codec.decode_rgbd(frame)
+    assert header == _rgbd_header() and np.array_equal(decoded, pixels) and np.array_equal(decoded_depth, depth)
+    assert decoded_depth.dtype == np.uint16
+    assert np.array_equal(codec.decode_image(frame)[1], pixels)
+    colour_only = codec.encode_image(_header(), pixels)
+    assert codec.decode_rgbd(colour_only)[2] is None
+
+
+def test_rgbd_frames_with_missing_depth_bytes_or_a_bad_depth_header_are_refused():
+    pixels, depth = np.zeros((3, 4, 3), np.uint8), np.zeros((2, 2), np.uint16)
+    frame = codec.encode_image(_rgbd_header(), pixels, depth)
+    with pytest.raises(codec.DecodeError, match=r"expected 44 for 4×3×3 \+ 2×2×2 \(depth\)") as short:
+        codec.decode_rgbd(frame[:-2])
+    assert short.value.kind == "image_size"
+    big_depth = schemas.DepthHeader(width=4, height=4, intrinsics=PinholeIntrinsics(fx=11.0, fy=11.0, cx=2.0, cy=2.0, width=4, height=4))
+    big_frame = codec.encode_image(_header().model_copy(update={"depth": big_depth}), pixels, np.zeros((4, 4), np.uint16))
+    with pytest.raises(codec.DecodeError) as large:
+        codec.decode_rgbd(big_frame, max_pixels=12)  # the colour image (12 pixels) passes, the depth image (16) does not
+    assert large.value.kind == "image_too_large"
+    with pytest.raises(ValueError, match="depth encoding '32FC1'"):
+        schemas.DepthHeader(encoding="32FC1", width=2, height=2, intrinsics=DEPTH_INTRINSICS)
+    with pytest.raises(ValueError, match="depth image size 3×2 does not match"):
+        schemas.DepthHeader(width=3, height=2, intrinsics=DEPTH_INTRINSICS)
+    with pytest.raises(ValueError, match="expected one exactly when the header declares depth"):
+        codec.encode_image(_header(), pixels, depth)
+    with pytest.raises(ValueError, match="depth pixels: expected uint16 of shape"):
+        codec.encode_image(_rgbd_header(), pixels, depth.astype(np.float32))

@@ -6,6 +6,7 @@ import math
 import threading
 
 import msgpack
+import numpy as np
 import pytest
 import torch
 
@@ -19,6 +20,7 @@ from locnerf.maps.keyframes import build_keyframe_index
 from locnerf.messages import keys
 from locnerf.messages.codec import SCHEMA_VERSION, decode, encode, encode_image
 from locnerf.messages.schemas import (
+    DepthHeader,
     FilterStatus,
     GlobalLocalizationCommand,
     ImageHeader,
@@ -27,6 +29,7 @@ from locnerf.messages.schemas import (
     PoseEstimate,
     UpdateRequest,
 )
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import GroundTruthEvent
 from locnerf.sim.world import ProceduralWorld
 from services.filter_loop.__main__ import FilterProcessConfig, build_loop, localizer_config
@@ -555,6 +558,60 @@ def test_a_converged_cloud_is_weighed_by_reprojection_live(world) -> None:
         while harness.requests:
             harness.answer(harness.requests.pop(0)[1])
         assert harness.loop.localizer.counters["merged"] == 1
+
+
+def _rgbd_image(world: ProceduralWorld, stamp: float, pose: torch.Tensor, depth_mm: np.ndarray, camera: PinholeIntrinsics) -> bytes:
+    pixels = (world.render_image(pose) * 255).round().to(torch.uint8).numpy()
+    intrinsics = world.default_intrinsics
+    header = ImageHeader(
+        stamp=stamp,
+        encoding="rgb8",
+        width=intrinsics.width,
+        height=intrinsics.height,
+        intrinsics=intrinsics,
+        depth=DepthHeader(width=camera.width, height=camera.height, intrinsics=camera),
+    )
+    return encode_image(header, pixels, depth_mm)
+
+
+def test_rgbd_frames_send_the_same_depth_part_to_every_worker(world) -> None:
+    """With ``measurement.depth`` an RGB-D frame's update carries the depth image, its camera and the same
+    depth pixels (valid readings) in every shard, and merges; a colour-only frame goes without (warned
+    once); without ``measurement.depth`` the depth is not sent; a depth image with no reading is counted
+    and the update goes on with colour alone."""
+    truth = world.sample_camera_pose(torch.Generator().manual_seed(0))
+    camera = PinholeIntrinsics(fx=20.0, fy=20.0, cx=10.0, cy=7.5, width=20, height=15)
+    depth_mm = np.full((15, 20), 2000, dtype=np.uint16)
+    depth_mm[:5] = 0
+    with_depth = preset("llff", measurement={"depth": {"pixels": 12}})
+    for settings, payload, sends in (
+        (with_depth, _rgbd_image(world, 0.0, truth, depth_mm, camera), True),
+        (with_depth, _image(world, 0.0, truth), False),
+        (preset("llff"), _rgbd_image(world, 0.0, truth, depth_mm, camera), False),
+        (with_depth, _rgbd_image(world, 0.0, truth, np.zeros_like(depth_mm), camera), False),
+    ):
+        harness = Harness(world, FilterLoopConfig(start="wait"), localizer_config=settings)
+        harness.add_worker("w1")
+        harness.add_worker("w2")
+        covariance = torch.diag(torch.tensor([1e-4] * 6, dtype=torch.float64))
+        harness.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=truth.tolist(), covariance=covariance.tolist())))
+        harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
+        harness.loop.predict_pending()
+        harness.collect(harness.loop.handle_image(payload))
+        harness.tick()
+        parts = [request.depth for _, request in harness.requests]
+        assert len(parts) == 2
+        if not sends:
+            assert parts == [None, None]
+            continue
+        assert parts[0] is not None and parts[0] == parts[1]
+        assert parts[0].intrinsics == camera and len(parts[0].pixels) == 12 and all(v >= 5 for _, v in parts[0].pixels)
+        assert parts[0].image == depth_mm.astype("<u2").tobytes()
+        while harness.requests:
+            harness.answer(harness.requests.pop(0)[1])
+        assert harness.loop.localizer.counters["merged"] == 1
+        assert harness.loop.dispatcher.counters["updates_with_depth"] == 1
+    assert harness.loop.counters()["depth_without_readings"] == 1 and harness.loop.bad.total == 0
 
 
 def test_repeated_updates_on_one_image_wait_for_the_previous_merge(world) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -13,16 +14,19 @@ import torch
 from locnerf.data.detect import read_dataset
 from locnerf.data.posed_images import PosedImages
 from locnerf.field.protocol import MapNormalization
+from locnerf.filter.depth_measurement import DepthConfig, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels
 from locnerf.filter.warp import render_reference, warp_log_likelihoods
 from locnerf.geometry.se3 import pose_inverse, se3_exp
-from locnerf.messages.codec import decode, decode_image, encode
-from locnerf.messages.schemas import Odometry, UpdateRequest, WarpRequest
+from locnerf.messages.codec import decode, decode_image, decode_rgbd, encode
+from locnerf.messages.schemas import DepthRequest, Odometry, UpdateRequest, WarpRequest
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
+from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
+from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, depth_millimetres
 from locnerf.sim.sensors import VioConfig, simulate_odometry
 from locnerf.sim.world import ProceduralWorld
 from services.nerf_worker.service import NerfWorker, RequestError
+from services.rgbd import depth_observation
 from services.sensor_ingest.__main__ import IngestConfig, sensor_events
 from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
 from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
@@ -179,6 +183,25 @@ def test_replay_interpolates_between_frames_in_metres(generator):
     torch.testing.assert_close(pose_inverse(odometry[0].T_odom_body) @ odometry[-1].T_odom_body, pose_inverse(truth[0.0]) @ truth[1.0])
 
 
+def test_replay_of_an_rgbd_sequence_sends_its_depth_in_millimetres(generator):
+    """Depth in map units (2 per metre here) leaves as uint16 millimetres after the colour pixels;
+    the filter's decoder gets it back, and readings uint16 cannot hold become 0 (no reading)."""
+    depth_camera = PinholeIntrinsics(fx=4.0, fy=4.0, cx=2.0, cy=1.5, width=4, height=3)
+    depths = torch.full((3, 3, 4), 3.0)  # 1.5 m
+    depths[:, 0, 0] = 0.0
+    depths[:, 0, 1] = 200.0  # 100 m: beyond uint16 millimetres
+    sequence = dataclasses.replace(_sequence(3), depths=depths, depth_intrinsics=depth_camera)
+    images = [e for e in replay_events(sequence, ReplaySourceConfig(frame_rate=2.0, vio=QUIET_VIO), generator) if isinstance(e, ImageEvent)]
+    assert all(e.depth is not None and e.depth.intrinsics == depth_camera for e in images)
+    expected = np.full((3, 4), 1500, dtype=np.uint16)
+    expected[0, :2] = 0
+    header, pixels, depth = decode_rgbd(event_message("r", images[1])[1])
+    assert np.array_equal(depth, expected) and header.depth.intrinsics == depth_camera and np.array_equal(pixels, images[1].pixels)
+    assert all(e.depth is None for e in replay_events(_sequence(2), ReplaySourceConfig(), generator) if isinstance(e, ImageEvent))
+    with pytest.raises(ValueError, match=r"depth image: expected shape \(H, W\), got \(1, 3, 4\)"):
+        depth_millimetres(depths[:1])
+
+
 def test_lego_orbit_replays_from_the_shared_data(shared_data, generator):
     config = ReplaySourceConfig(path=str(shared_data / "nerf_synthetic" / "lego"), split="test", downscale=8, skip_missing=True)
     sequence = read_dataset(config.path, split=config.split, downscale=config.downscale, skip_missing=config.skip_missing)
@@ -260,3 +283,55 @@ def test_worker_warps_as_the_in_process_localizer_does(world, generator):
         UpdateRequest.model_validate(request.model_dump() | {"warp": request.warp.model_dump() | {"image": bytes(10)}})
     with pytest.raises(ValueError, match=r"measurement.warp is None"):
         WarpRequest.model_validate(request.warp.model_dump() | {"measurement": {}})
+
+
+def _world_depth_millimetres(world: ProceduralWorld, pose: torch.Tensor, camera: PinholeIntrinsics) -> np.ndarray:
+    """(H, W) uint16 millimetres of the world's surfaces seen from ``pose`` along the camera's optical axis (the world is metric)."""
+    origins, directions = rays_from_poses_and_pixels(pose[None].double(), pixel_grid(camera), camera)
+    _, points, opacity = world.render_surface(origins[0], directions[0])
+    depth = -((points - pose[:3, 3].double()) @ pose[:3, 2].double())
+    depth = torch.where(opacity >= 0.5, depth, torch.zeros_like(depth))
+    return depth_millimetres(depth.reshape(camera.height, camera.width))
+
+
+def test_worker_adds_the_depth_term_of_an_rgbd_request_as_the_localizer_does(world, generator):
+    """The depth term joins the colour term: rendered from every pose for the request's depth pixels, or
+    re-projected from the reference render's depth points (the same seed, so the same on every shard);
+    the request decodes to itself; a map without surfaces leaves the term out; bad depth parts are refused."""
+    camera = PinholeIntrinsics.from_fov(40, 30, math.radians(60))
+    depth_config = DepthConfig(pixels=20)
+    request, poses, image, measurement = _warp_request(world, generator)
+    truth = torch.tensor(request.warp.reference_pose, dtype=torch.float64)
+    millimetres = _world_depth_millimetres(world, truth, camera)
+    observation = depth_observation(millimetres, camera, scale=1.0)
+    measurement = measurement.model_copy(update={"depth": depth_config})
+    depth_pixels = sample_depth_pixels(observation, depth_config, generator)
+    depth_part = DepthRequest(image=millimetres.astype("<u2").tobytes(), intrinsics=camera, measurement=measurement, pixels=depth_pixels.tolist())
+    rendered = request.model_copy(update={"warp": None, "depth": depth_part})
+    warped = request.model_copy(update={"warp": request.warp.model_copy(update={"measurement": measurement}), "depth": depth_part})
+    for message in (rendered, warped):
+        assert decode(encode(message), UpdateRequest) == message
+
+    colour = particle_log_likelihoods(poses, torch.tensor(request.pixels), torch.tensor(request.observed_rgb), world.default_intrinsics, world.render_rays)
+    expected = colour.double() + rendered_depth_log_likelihoods(poses, observation, depth_pixels, world.render_surface, depth_config).double()
+    torch.testing.assert_close(torch.tensor(NerfWorker(world, "w").handle(rendered).log_likelihoods, dtype=torch.float64), expected)
+
+    reference = render_reference(
+        world.render_surface, truth, world.default_intrinsics, measurement, torch.Generator().manual_seed(7), depth_config.pixels, camera
+    )
+    assert reference.depth_points.shape == (depth_config.pixels, 4)
+    expected = warp_log_likelihoods(poses, reference, image, world.default_intrinsics).double()
+    expected = expected + warped_depth_log_likelihoods(poses, reference.depth_points, observation, depth_config).double()
+    torch.testing.assert_close(torch.tensor(NerfWorker(world, "w").handle(warped).log_likelihoods, dtype=torch.float64), expected)
+
+    class RenderOnly:  # the world without its surface renderer, as an MLP or NDC map
+        def __init__(self) -> None:
+            self.render_rays, self.device, self.normalization = world.render_rays, world.device, world.normalization
+
+    torch.testing.assert_close(torch.tensor(NerfWorker(RenderOnly(), "w").handle(rendered).log_likelihoods, dtype=torch.float64), colour.double())
+    with pytest.raises(ValueError, match=r"depth request: image of 10 bytes, expected 2400 for 40×30 uint16"):
+        DepthRequest.model_validate(depth_part.model_dump() | {"image": bytes(10)})
+    with pytest.raises(ValueError, match=r"expected 1 or more pixels \(u, v\) inside the 40×30 depth image"):
+        DepthRequest.model_validate(depth_part.model_dump() | {"pixels": [[40.0, 0.0]]})
+    with pytest.raises(ValueError, match=r"measurement.depth is None"):
+        DepthRequest.model_validate(depth_part.model_dump() | {"measurement": {}})

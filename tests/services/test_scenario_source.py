@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import cv2
+import numpy as np
 import torch
 
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
@@ -51,3 +53,20 @@ def test_lego_orbit_is_served_with_synthesised_odometry(shared_data):
     assert [e.stamp for e in images] == [odometry[3 * k].stamp for k in range(11)]  # 0, 0.2, ..., 2.0 s
     moved = torch.linalg.vector_norm(odometry[-1].T_odom_body[:3, 3] - odometry[0].T_odom_body[:3, 3])
     assert float(moved) > 1.0  # about 1 unit per second along the orbit
+
+
+def test_an_rgbd_sequence_is_served_with_its_depth_images_in_millimetres(shared_data):
+    """7-Scenes test frames at the camera's 30 Hz, 5 Hz images: each image carries the depth file of its
+    frame, subsampled as the reader does, as the uint16 millimetres of the file (no reading stays 0)."""
+    kitchen = shared_data / "7scenes_redkitchen"
+    scenario = ScenarioSourceConfig(sequence=str(kitchen), split="test", downscale=8, frame_rate=30.0, duration=0.4, image_rate=5.0)
+    images = [e for e in sensor_events(IngestConfig(source="scenario", scenario=scenario)) if isinstance(e, ImageEvent)]
+    assert [round(e.stamp, 6) for e in images] == [0.0, 0.2, 0.4]  # the test split's frames 0, 6 and 12: seq-02's 600, 606, 612
+    for image, frame in zip(images, (600, 606, 612)):
+        raw = cv2.imread(str(kitchen / "seq-02" / f"frame-{frame:06d}.depth.png"), cv2.IMREAD_UNCHANGED)
+        stride = raw.shape[1] // image.depth.millimetres.shape[1]
+        expected = raw[::stride, ::stride].copy()
+        expected[expected == 65535] = 0
+        assert image.depth is not None and image.depth.millimetres.dtype == np.uint16 and image.pixels.shape == (60, 80, 3)
+        assert image.depth.intrinsics.width == image.depth.millimetres.shape[1] == 80
+        assert np.array_equal(image.depth.millimetres, expected)
