@@ -19,10 +19,11 @@ from locnerf.filter.depth_measurement import (
 )
 from locnerf.filter.measurement import WarpConfig
 from locnerf.filter.warp import render_reference
-from locnerf.geometry import pose_inverse, se3_exp
+from locnerf.geometry import pose_inverse
 from locnerf.render import PinholeIntrinsics
 from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 from locnerf.sim.world import ProceduralWorld
+from tests.filter.world_poses import poses_around, true_pose
 
 COLOUR = PinholeIntrinsics.from_fov(64, 48, math.radians(70))
 DEPTH = PinholeIntrinsics.from_fov(40, 30, math.radians(60))
@@ -32,16 +33,6 @@ FINE_DEPTH = PinholeIntrinsics.from_fov(100, 75, math.radians(65))  # narrower t
 @pytest.fixture(scope="module")
 def world() -> ProceduralWorld:
     return ProceduralWorld.default()
-
-
-def _true_pose(world: ProceduralWorld, seed: int = 3) -> torch.Tensor:
-    return world.sample_camera_pose(torch.Generator().manual_seed(seed)).double()
-
-
-def _around(pose: torch.Tensor, count: int, rotation: float, translation: float, generator: torch.Generator) -> torch.Tensor:
-    """(count, 4, 4) float64 poses ``pose · Exp(δ)`` with δ Gaussian (rotation first)."""
-    sigma = torch.tensor([rotation] * 3 + [translation] * 3, dtype=torch.float64)
-    return pose[None] @ se3_exp(torch.randn(count, 6, generator=generator, dtype=torch.float64) * sigma)
 
 
 def _depth_image(world: ProceduralWorld, pose: torch.Tensor, camera: PinholeIntrinsics = DEPTH) -> DepthObservation:
@@ -119,11 +110,11 @@ def test_bad_observation_shapes_are_refused() -> None:
 
 def test_rendered_depth_matches_a_particle_by_particle_ray_loop(world: ProceduralWorld, generator: torch.Generator) -> None:
     """Chunked, batched rendering against one ray at a time (camera-frame depth of the hit point; a miss counts c²)."""
-    truth = _true_pose(world)
+    truth = true_pose(world)
     observation = _depth_image(world, truth)
     config = DepthConfig(pixels=40, truncation=0.3)
     pixels = sample_depth_pixels(observation, config, generator).double()
-    poses = _around(truth, 6, math.radians(3), 0.1, generator)
+    poses = poses_around(truth, 6, math.radians(3), 0.1, generator)
     fast = rendered_depth_log_likelihoods(poses, observation, pixels, world.render_surface, config, ray_chunk=37)
     slow = []
     for pose in poses:
@@ -172,7 +163,7 @@ def test_warped_depth_matches_a_particle_by_particle_projection_loop(generator: 
     points[:, 2] -= 2.5  # mostly in front of the identity camera (OpenGL: it looks along -z)
     points[0, 2] = 1.0  # behind
     points[1, 3] = 0.0  # a direction at infinity
-    poses = _around(torch.eye(4, dtype=torch.float64), 5, math.radians(5), 0.2, generator)
+    poses = poses_around(torch.eye(4, dtype=torch.float64), 5, math.radians(5), 0.2, generator)
     fast = warped_depth_log_likelihoods(poses, points, observation, config)
     slow = []
     for pose in poses:
@@ -191,10 +182,10 @@ def test_warped_depth_matches_a_particle_by_particle_projection_loop(generator: 
 
 def test_the_true_pose_is_the_most_likely_in_the_procedural_world(world: ProceduralWorld, generator: torch.Generator) -> None:
     """A depth image rendered at the truth: the truth scores highest among perturbed poses, rendered and re-projected."""
-    truth = _true_pose(world)
+    truth = true_pose(world)
     observation = _depth_image(world, truth, FINE_DEPTH)
     config = DepthConfig(pixels=128)
-    poses = torch.cat((truth[None], _around(truth, 40, math.radians(1.0), 0.03, generator)))
+    poses = torch.cat((truth[None], poses_around(truth, 40, math.radians(1.0), 0.03, generator)))
     rendered = rendered_depth_log_likelihoods(poses, observation, sample_depth_pixels(observation, config, generator), world.render_surface, config)
     assert int(rendered.argmax()) == 0
     measurement = preset("llff").measurement.model_copy(update={"warp": WarpConfig(max_spread=0.05), "depth": config})
@@ -213,7 +204,7 @@ def _localizer(depth: DepthConfig | None, warp: WarpConfig | None = None, partic
 def test_localizer_adds_the_depth_term(world: ProceduralWorld) -> None:
     """Depth configured and given: N × (M + M_d) rays, or the reference's alone when warping; refused without a
     surface renderer; a frame without depth is colour only; depth not configured leaves the update exactly as it was."""
-    truth = _true_pose(world)
+    truth = true_pose(world)
     image = world.render_image(truth.float(), COLOUR)
     observation = _depth_image(world, truth)
     spread = torch.diag(torch.tensor([1e-3] * 3 + [1e-2] * 3, dtype=torch.float64))

@@ -22,6 +22,7 @@ from locnerf.geometry import se3_exp
 from locnerf.render import PinholeIntrinsics
 from locnerf.render.rays import rays_from_poses_and_pixels
 from locnerf.sim.world import ProceduralWorld
+from tests.filter.world_poses import poses_around, true_pose
 
 CAMERA = PinholeIntrinsics.from_fov(64, 48, math.radians(70))
 
@@ -31,19 +32,9 @@ def world() -> ProceduralWorld:
     return ProceduralWorld.default()
 
 
-def _true_pose(world: ProceduralWorld, seed: int = 3) -> torch.Tensor:
-    return world.sample_camera_pose(torch.Generator().manual_seed(seed)).double()
-
-
-def _around(pose: torch.Tensor, count: int, rotation: float, translation: float, generator: torch.Generator) -> torch.Tensor:
-    """(count, 4, 4) float64 poses ``pose · Exp(δ)`` with δ Gaussian (rotation first)."""
-    sigma = torch.tensor([rotation] * 3 + [translation] * 3, dtype=torch.float64)
-    return pose[None] @ se3_exp(torch.randn(count, 6, generator=generator, dtype=torch.float64) * sigma)
-
-
 def test_projection_inverts_the_rays(generator: torch.Generator) -> None:
     """A point at any depth on the ray through pixel p projects back to p; a direction (w = 0) too, from any position."""
-    poses = _around(torch.eye(4, dtype=torch.float64), 5, 0.3, 1.0, generator)
+    poses = poses_around(torch.eye(4, dtype=torch.float64), 5, 0.3, 1.0, generator)
     pixels = torch.rand(40, 2, generator=generator, dtype=torch.float64) * torch.tensor([63.0, 47.0], dtype=torch.float64)
     origins, directions = rays_from_poses_and_pixels(poses, pixels, CAMERA)
     depth = 0.5 + 5.0 * torch.rand(5, 40, 1, generator=generator, dtype=torch.float64)
@@ -82,7 +73,7 @@ def test_bilinear_sampling_against_a_naive_loop(generator: torch.Generator) -> N
 
 def test_warp_of_the_reference_pose_reads_the_reference_colours(world: ProceduralWorld, generator: torch.Generator) -> None:
     """Rendered from the true pose and observed from it: every reference point lands on its own pixel."""
-    truth = _true_pose(world)
+    truth = true_pose(world)
     image = world.render_image(truth.float(), CAMERA).double()
     measurement = MeasurementConfig(warp=WarpConfig(max_spread=0.1, pixels=200, stride=2))
     reference = render_reference(world.render_surface, truth, CAMERA, measurement, generator)
@@ -98,11 +89,11 @@ def test_warp_of_the_reference_pose_reads_the_reference_colours(world: Procedura
 
 def test_vectorised_warp_equals_a_particle_by_particle_loop(world: ProceduralWorld, generator: torch.Generator) -> None:
     """Float64: N particles at once give each particle's likelihood computed alone, with and without the exposure fit."""
-    truth = _true_pose(world)
+    truth = true_pose(world)
     image = world.render_image(truth.float(), CAMERA).double()
     reference = render_reference(world.render_surface, truth, CAMERA, MeasurementConfig(warp=WarpConfig(max_spread=0.1, pixels=64)), generator)
     reference = WarpReference(reference.colours.double(), reference.points.double())
-    poses = _around(truth, 7, 0.02, 0.05, generator)
+    poses = poses_around(truth, 7, 0.02, 0.05, generator)
     for gain_range in (None, (0.5, 2.0)):
         together = warp_log_likelihoods(poses, reference, image, CAMERA, exposure_gain_range=gain_range)
         alone = torch.cat([warp_log_likelihoods(poses[n : n + 1], reference, image, CAMERA, exposure_gain_range=gain_range) for n in range(7)])
@@ -117,11 +108,11 @@ def test_warp_weighs_particles_like_the_full_render(world: ProceduralWorld, gene
     render 1.3 cm, warp 2.2 cm (reference at the truth) and 1.7 cm (at the start). Tolerance: under
     0.6 × the prior's error, and within 1.5 cm of the full render's. Without the occlusion test
     (:func:`beyond_an_edge`) the reference at the start left the mean 3.0 cm off."""
-    truth = _true_pose(world)
+    truth = true_pose(world)
     camera = PinholeIntrinsics.from_fov(160, 120, math.radians(70))
     image = world.render_image(truth.float(), camera)
     start = truth @ se3_exp(torch.tensor([[0.0, 0.01, 0.0, 0.04, 0.0, 0.0]], dtype=torch.float64))[0]
-    poses = (_around(start, 1200, 0.01, 0.03, generator)).float()
+    poses = (poses_around(start, 1200, 0.01, 0.03, generator)).float()
     relative = (torch.linalg.inv(truth)[None] @ poses.double())[:, :3, 3]
     measurement = MeasurementConfig(pixels=512, warp=WarpConfig(max_spread=0.1, pixels=512, stride=2))
     pixels = sample_pixels_of_image(image, measurement, generator)
@@ -153,11 +144,11 @@ def test_reference_pose_only_for_a_tight_cloud(generator: torch.Generator) -> No
     config = WarpConfig(max_spread=0.05, max_rotation_spread_deg=2.0)
     centre = torch.eye(4, dtype=torch.float64)
     weights = torch.full((400,), 1 / 400, dtype=torch.float64)
-    tight = _around(centre, 400, math.radians(0.5), 0.01, generator)
+    tight = poses_around(centre, 400, math.radians(0.5), 0.01, generator)
     mean = warp_reference_pose(tight, weights, config)
     assert mean is not None and float((mean[:3, 3]).norm()) < 0.005
-    assert warp_reference_pose(_around(centre, 400, math.radians(0.5), 0.2, generator), weights, config) is None
-    assert warp_reference_pose(_around(centre, 400, math.radians(8.0), 0.01, generator), weights, config) is None
+    assert warp_reference_pose(poses_around(centre, 400, math.radians(0.5), 0.2, generator), weights, config) is None
+    assert warp_reference_pose(poses_around(centre, 400, math.radians(8.0), 0.01, generator), weights, config) is None
 
 
 def _world_localizer(world: ProceduralWorld, warp: WarpConfig | None) -> Localizer:
@@ -169,7 +160,7 @@ def _world_localizer(world: ProceduralWorld, warp: WarpConfig | None) -> Localiz
 def test_localizer_warps_a_converged_cloud_and_renders_a_spread_one(world: ProceduralWorld) -> None:
     """With ``measurement.warp``: a tight cloud renders the warp's M pixels once; a spread one renders
     N × M rays; a tight cloud without a surface renderer is refused with the reason."""
-    truth = _true_pose(world)
+    truth = true_pose(world)
     image = world.render_image(truth.float(), CAMERA)
     localizer = _world_localizer(world, WarpConfig(max_spread=0.05, pixels=100))
     localizer.initialize_gaussian(truth, torch.diag(torch.tensor([1e-4] * 3 + [1e-4] * 3, dtype=torch.float64)))
@@ -210,9 +201,9 @@ def test_pixel_draw_keeps_to_the_eligible_pixels(generator: torch.Generator) -> 
 def test_cuda_warp_matches_the_cpu_warp(world: ProceduralWorld) -> None:
     """Poses, map and image on CUDA (the reference pose stays a CPU float64, as the filter sends it):
     the same reference pixels and likelihoods as on the CPU, within float32 rounding."""
-    truth = _true_pose(world)
+    truth = true_pose(world)
     image = world.render_image(truth.float(), CAMERA)
-    poses = _around(truth, 50, 0.01, 0.02, torch.Generator().manual_seed(2)).float()
+    poses = poses_around(truth, 50, 0.01, 0.02, torch.Generator().manual_seed(2)).float()
     measurement = MeasurementConfig(warp=WarpConfig(max_spread=0.1, pixels=128))
     results = []
     for device in ("cpu", "cuda"):

@@ -84,6 +84,12 @@ class Harness:
     def tick(self) -> None:
         self.collect(self.loop.tick())
 
+    def start_at(self, truth: torch.Tensor, covariance: torch.Tensor) -> None:
+        """Initialise around ``truth`` (4, 4) with ``covariance`` (6, 6), take odometry at 0 s and apply its prediction."""
+        self.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=truth.tolist(), covariance=covariance.tolist())))
+        self.collect(self.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
+        self.loop.predict_pending()
+
 
 def test_global_localization_converges_and_tracks(world):
     harness = Harness(world)
@@ -542,9 +548,7 @@ def test_a_converged_cloud_is_weighed_by_reprojection_live(world) -> None:
         harness.add_worker("w1")
         harness.add_worker("w2")
         covariance = torch.diag(torch.tensor([1e-4] * 3 + [spread**2] * 3, dtype=torch.float64))
-        harness.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=truth.tolist(), covariance=covariance.tolist())))
-        harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
-        harness.loop.predict_pending()
+        harness.start_at(truth, covariance)
         harness.collect(harness.loop.handle_image(_image(world, 0.0, truth)))
         harness.tick()
         warps = [request.warp for _, request in harness.requests]
@@ -594,9 +598,7 @@ def test_rgbd_frames_send_the_same_depth_part_to_every_worker(world) -> None:
         harness.add_worker("w1")
         harness.add_worker("w2")
         covariance = torch.diag(torch.tensor([1e-4] * 6, dtype=torch.float64))
-        harness.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=truth.tolist(), covariance=covariance.tolist())))
-        harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
-        harness.loop.predict_pending()
+        harness.start_at(truth, covariance)
         harness.collect(harness.loop.handle_image(payload))
         harness.tick()
         parts = [request.depth for _, request in harness.requests]
@@ -622,9 +624,7 @@ def test_repeated_updates_on_one_image_wait_for_the_previous_merge(world) -> Non
         harness = Harness(world, FilterLoopConfig(start="wait", updates_per_image=uses), localizer_config=preset("llff"))
         harness.add_worker("w1")
         covariance = torch.diag(torch.tensor([1e-4] * 3 + [1e-4] * 3, dtype=torch.float64))
-        harness.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=truth.tolist(), covariance=covariance.tolist())))
-        harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
-        harness.loop.predict_pending()
+        harness.start_at(truth, covariance)
         started = []
         for step in range(5):
             if step in (0, 4):
