@@ -8,6 +8,10 @@ Targets (all at ``--particles`` N and ``--pixels`` M):
   first reference pose, or a sampled world camera), as a converged cloud renders;
 * ``likelihood_warp``: those N poses weighed by re-projection (:mod:`locnerf.filter.warp`): the
   reference view rendered at every ``--warp-stride``-th pixel, M of its pixels warped into every pose;
+* ``depth_rendered`` / ``depth_warp``: the depth term of an RGB-D frame (:mod:`locnerf.filter.depth_measurement`)
+  for those N poses, its depth image the map's surface depth at the view: M depth pixels rendered from
+  every pose, or the reference render with M depth points re-projected into every pose (the colour
+  term not included; maps that can place surfaces only);
 * ``predict``: eq. 4 for N particles (odometry increment and tangent noise);
 * ``resample_multinomial`` / ``resample_systematic``: N indices from N weights;
 * ``rotation_mean``: weighted geodesic L2 mean of N rotations;
@@ -36,6 +40,7 @@ from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import RadianceMap, surface_renderer
 from locnerf.field.stored_map import StoredMap
 from locnerf.filter.annealing import AnnealingStage
+from locnerf.filter.depth_measurement import DepthConfig, DepthObservation, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
 from locnerf.filter.estimate import estimate_from_particles
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels, sample_pixels_of_image
 from locnerf.filter.motion import propagate_poses
@@ -47,7 +52,9 @@ from locnerf.geometry.averaging import geodesic_rotation_mean
 from locnerf.maps.source import open_map
 from locnerf.messages.codec import decode, decode_image, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, UpdateRequest, UpdateResult
-from locnerf.render.image import render_views
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import SurfaceRays, render_views
+from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 
 
 def add_target(targets: argparse._SubParsersAction) -> None:
@@ -82,7 +89,8 @@ def time_calls(function: Callable[[], object], repeats: int, device: torch.devic
 def converged_targets(
     radiance_map: RadianceMap, particles: int, pixels: int, stride: int, device: torch.device, generator: torch.Generator
 ) -> dict[str, Callable[[], object]]:
-    """``likelihood_converged`` and ``likelihood_warp``: N poses around one view of the map, its image rendered once here."""
+    """``likelihood_converged``, ``likelihood_warp`` and the depth targets: N poses around one view of the map, its image
+    (and, for the depth targets, its depth image) rendered once here."""
     intrinsics = radiance_map.default_intrinsics
     if isinstance(radiance_map, StoredMap):
         view = radiance_map.reference_poses()[0].double()
@@ -103,7 +111,31 @@ def converged_targets(
         targets["likelihood_warp"] = lambda: warp_log_likelihoods(
             poses, render_reference(render_surface, view.cpu(), intrinsics, measurement, generator), image, intrinsics
         )
+        targets |= depth_targets(render_surface, view, poses, measurement.model_copy(update={"depth": DepthConfig(pixels=pixels)}), intrinsics, generator)
     return targets
+
+
+def depth_targets(
+    render_surface: SurfaceRays,
+    view: torch.Tensor,
+    poses: torch.Tensor,
+    measurement: MeasurementConfig,
+    intrinsics: PinholeIntrinsics,
+    generator: torch.Generator,
+) -> dict[str, Callable[[], object]]:
+    """``depth_rendered`` and ``depth_warp``: the depth term of poses (N, 4, 4) for the map's own depth image at ``view`` (4, 4)."""
+    config = measurement.depth
+    origins, directions = rays_from_poses_and_pixels(view[None].float(), pixel_grid(intrinsics, device=view.device), intrinsics)
+    _, points, opacity = render_surface(origins[0], directions[0])
+    depth = -((points - view[:3, 3].to(points)) @ view[:3, 2].to(points))
+    observation = DepthObservation(torch.where(opacity >= 0.5, depth, torch.zeros_like(depth)).reshape(intrinsics.height, intrinsics.width).float(), intrinsics)
+    depth_pixels = sample_depth_pixels(observation, config, generator).to(view.device)
+    return {
+        "depth_rendered": lambda: rendered_depth_log_likelihoods(poses, observation, depth_pixels, render_surface, config),
+        "depth_warp": lambda: warped_depth_log_likelihoods(
+            poses, render_reference(render_surface, view.cpu(), intrinsics, measurement, generator, config.pixels, intrinsics).depth_points, observation, config
+        ),
+    }
 
 
 def build_targets(

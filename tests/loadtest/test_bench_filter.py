@@ -17,6 +17,8 @@ def test_every_filter_target_prints_one_json_line(capsys):
         "likelihood",
         "likelihood_converged",
         "likelihood_warp",
+        "depth_rendered",
+        "depth_warp",
         "predict",
         "resample_multinomial",
         "resample_systematic",
