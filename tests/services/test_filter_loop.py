@@ -6,89 +6,32 @@ import math
 import threading
 
 import msgpack
-import numpy as np
 import pytest
 import torch
 
 from locnerf.config import preset
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import carry_estimate
-from locnerf.filter.localizer import Localizer, SearchRegion
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
 from locnerf.maps.keyframes import build_keyframe_index
-from locnerf.messages import keys
-from locnerf.messages.codec import SCHEMA_VERSION, decode, encode, encode_image
-from locnerf.messages.schemas import (
-    DepthHeader,
-    FilterStatus,
-    GlobalLocalizationCommand,
-    ImageHeader,
-    InitialPoseCommand,
-    Odometry,
-    PoseEstimate,
-    UpdateRequest,
-)
-from locnerf.render.camera import PinholeIntrinsics
+from locnerf.messages.codec import SCHEMA_VERSION, decode, encode
+from locnerf.messages.schemas import FilterStatus, GlobalLocalizationCommand, InitialPoseCommand
 from locnerf.sim.events import GroundTruthEvent
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.__main__ import FilterProcessConfig, build_loop, localizer_config
+from services.filter_loop.__main__ import FilterProcessConfig, build_loop
 from services.filter_loop.odometry_history import OdometryHistory
-from services.filter_loop.service import FilterLoop, FilterLoopConfig
+from services.filter_loop.service import FilterLoopConfig
 from services.filter_loop.state_file import SavedPose
 from services.filter_loop.state_writer import StateWriter
 from services.nerf_worker.service import NerfWorker
-from services.sensor_ingest.service import event_message
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
-from tests.conftest import REPO_ROOT
-
-ROBOT = "r"
+from tests.services.filter_harness import Harness, image_payload, odometry_payload
 
 
 @pytest.fixture(scope="module")
 def world() -> ProceduralWorld:
     return ProceduralWorld.default()
-
-
-class Harness:
-    """A filter loop, a fake clock and workers answering on demand."""
-
-    def __init__(self, world: ProceduralWorld, config: FilterLoopConfig = FilterLoopConfig(), seed: int = 0, localizer_config=None, keyframes=None) -> None:
-        bounds = world.camera_bounds()
-        self.region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
-        self.now = 0.0
-        settings = localizer_config if localizer_config is not None else preset("llff")
-        localizer = Localizer(settings, torch.Generator().manual_seed(seed), region=self.region, keyframes=keyframes)
-        self.loop = FilterLoop(ROBOT, localizer, world.normalization, self.region, config, lambda: self.now)
-        self.world = world
-        self.requests: list[tuple[str, UpdateRequest]] = []
-        self.poses: list[PoseEstimate] = []
-
-    def add_worker(self, name: str, alive: bool = True) -> None:
-        self.collect(self.loop.worker_changed(keys.key(ROBOT, keys.WORKER_ALIVE, worker_id=name, device="cpu"), alive))
-
-    def collect(self, outgoing) -> None:
-        for key, payload in outgoing:
-            if "/update/request/" in key:
-                self.requests.append((key.rsplit("/", 1)[1], decode(payload, UpdateRequest)))
-            elif key.endswith("filter/pose"):
-                self.poses.append(decode(payload, PoseEstimate))
-
-    def answer(self, request: UpdateRequest) -> None:
-        self.collect(self.loop.handle_result(encode(NerfWorker(self.world, "w").handle(request))))
-
-    def feed(self, event) -> None:
-        key, payload = event_message(ROBOT, event)
-        self.collect(self.loop.handle_odometry(payload) if key.endswith("odom") else self.loop.handle_image(payload))
-
-    def tick(self) -> None:
-        self.collect(self.loop.tick())
-
-    def start_at(self, truth: torch.Tensor, covariance: torch.Tensor) -> None:
-        """Initialise around ``truth`` (4, 4) with ``covariance`` (6, 6), take odometry at 0 s and apply its prediction."""
-        self.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=truth.tolist(), covariance=covariance.tolist())))
-        self.collect(self.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
-        self.loop.predict_pending()
 
 
 def test_global_localization_converges_and_tracks(world):
@@ -113,28 +56,17 @@ def test_global_localization_converges_and_tracks(world):
     assert len(harness.poses) == 151  # one pose per odometry message: 0 .. 10 s at 15 Hz, both ends (the simulator's grid)
 
 
-def _odometry(stamp: float, pose: torch.Tensor) -> bytes:
-    return encode(Odometry(stamp=stamp, T_odom_body=pose.tolist()))
-
-
-def _image(world: ProceduralWorld, stamp: float, pose: torch.Tensor) -> bytes:
-    pixels = (world.render_image(pose) * 255).round().to(torch.uint8).numpy()
-    intrinsics = world.default_intrinsics
-    header = ImageHeader(stamp=stamp, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics)
-    return encode_image(header, pixels)
-
-
 def test_a_merge_whose_snapshot_predates_predictions_and_a_resample(world, generator):
     harness = Harness(world, FilterLoopConfig(max_in_flight=2))
     harness.add_worker("w1")
     pose = world.sample_camera_pose(generator)
-    harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64)))
-    harness.loop.handle_image(_image(world, 0.0, pose))
+    harness.loop.handle_odometry(odometry_payload(0.0, torch.eye(4, dtype=torch.float64)))
+    harness.loop.handle_image(image_payload(world, 0.0, pose))
     harness.tick()
     first = harness.requests.pop()[1]
     for step in range(1, 6):  # several predictions while the first update is out
-        harness.collect(harness.loop.handle_odometry(_odometry(step / 15, torch.eye(4, dtype=torch.float64))))
-    harness.loop.handle_image(_image(world, 5 / 15, pose))
+        harness.collect(harness.loop.handle_odometry(odometry_payload(step / 15, torch.eye(4, dtype=torch.float64))))
+    harness.loop.handle_image(image_payload(world, 5 / 15, pose))
     harness.tick()
     second = harness.requests.pop()[1]
     harness.answer(second)  # merged first: resamples, a new generation
@@ -148,7 +80,7 @@ def test_a_merge_whose_snapshot_predates_predictions_and_a_resample(world, gener
 def test_a_result_from_before_a_reinitialisation_is_stale(world, generator):
     harness = Harness(world)
     harness.add_worker("w1")
-    harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator)))
+    harness.loop.handle_image(image_payload(world, 0.0, world.sample_camera_pose(generator)))
     harness.tick()
     request = harness.requests.pop()[1]
     harness.loop.handle_global_localization(encode(GlobalLocalizationCommand(stamp=0.0)))
@@ -160,7 +92,7 @@ def test_two_workers_share_an_update_and_a_vanished_workers_shard_is_resent(worl
     harness = Harness(world)
     harness.add_worker("w1")
     harness.add_worker("w2")
-    harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator)))
+    harness.loop.handle_image(image_payload(world, 0.0, world.sample_camera_pose(generator)))
     harness.tick()
     assert sorted(worker for worker, _ in harness.requests) == ["w1", "w2"]
     ids = sorted(i for _, request in harness.requests for i in request.ids)
@@ -177,12 +109,12 @@ def test_two_workers_share_an_update_and_a_vanished_workers_shard_is_resent(worl
 def test_an_unanswered_update_times_out_and_the_loop_goes_on(world, generator):
     harness = Harness(world, FilterLoopConfig(update_timeout=2.0))
     harness.add_worker("w1")
-    harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator)))
+    harness.loop.handle_image(image_payload(world, 0.0, world.sample_camera_pose(generator)))
     harness.tick()
     harness.now = 2.5
     harness.tick()
     assert harness.loop.counters()["updates_timed_out"] == 1 and harness.loop.dispatcher.in_flight == 0
-    harness.collect(harness.loop.handle_odometry(_odometry(0.1, torch.eye(4, dtype=torch.float64))))
+    harness.collect(harness.loop.handle_odometry(odometry_payload(0.1, torch.eye(4, dtype=torch.float64))))
     assert len(harness.poses) == 1
 
 
@@ -194,16 +126,16 @@ def test_bad_messages_are_counted_by_kind_and_dropped(world, generator):
     harness = Harness(world, FilterLoopConfig(max_image_age=1.0))
     loop = harness.loop
     eye = torch.eye(4, dtype=torch.float64)
-    loop.handle_odometry(_odometry(10.0, eye))
+    loop.handle_odometry(odometry_payload(10.0, eye))
     loop.handle_odometry(b"\x00garbage")
     loop.handle_odometry(_raw("Odometry", {"stamp": 11.0, "T_odom_body": [[math.nan] * 4] * 4}))
     loop.handle_odometry(_raw("Odometry", {"stamp": 11.0, "T_odom_body": eye.tolist()}, version=SCHEMA_VERSION + 1))
-    loop.handle_odometry(_odometry(9.0, eye))
+    loop.handle_odometry(odometry_payload(9.0, eye))
     sheared = eye.clone()
     sheared[0, 1] = 0.5
-    loop.handle_odometry(_odometry(11.0, sheared))
-    loop.handle_image(_image(world, 5.0, world.sample_camera_pose(generator)))
-    loop.handle_image(_image(world, 10.0, world.sample_camera_pose(generator))[:-3])
+    loop.handle_odometry(odometry_payload(11.0, sheared))
+    loop.handle_image(image_payload(world, 5.0, world.sample_camera_pose(generator)))
+    loop.handle_image(image_payload(world, 10.0, world.sample_camera_pose(generator))[:-3])
     bad_covariance = [[-1.0 if i == j else 0.0 for j in range(6)] for i in range(6)]
     loop.handle_initial_pose(_raw("InitialPoseCommand", {"stamp": 0.0, "T_world_cam": eye.tolist(), "covariance": bad_covariance}))
     loop.handle_result(b"")
@@ -219,7 +151,7 @@ def test_bad_messages_are_counted_by_kind_and_dropped(world, generator):
         "bad_command_invalid": 1,
     }
     assert {k: counters[k] for k in expected} == expected and counters["bad_messages"] == sum(expected.values())
-    harness.collect(loop.handle_odometry(_odometry(12.0, eye)))
+    harness.collect(loop.handle_odometry(odometry_payload(12.0, eye)))
     assert len(harness.poses) == 1  # still running
     status = decode(harness.loop.tick()[-1][1], FilterStatus)
     assert status.counters["bad_messages"] == 9 and status.state == "running"
@@ -233,7 +165,7 @@ def test_initial_pose_command_and_restart_from_the_saved_state(world, generator,
     target = world.sample_camera_pose(generator)
     covariance = torch.diag(torch.tensor([1e-4] * 3 + [1e-3] * 3, dtype=torch.float64))
     first.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=0.0, T_world_cam=target.tolist(), covariance=covariance.tolist())))
-    first.collect(first.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
+    first.collect(first.loop.handle_odometry(odometry_payload(0.0, torch.eye(4, dtype=torch.float64))))
     published = torch.tensor(first.poses[-1].T_world_cam, dtype=torch.float64)
     assert float(translation_error(published, target)) < 0.05
     first.loop.close()  # the writer thread writes the last pose on close
@@ -241,7 +173,7 @@ def test_initial_pose_command_and_restart_from_the_saved_state(world, generator,
     restarted = Harness(world, config, seed=1)
     assert restarted.loop.running
     moved = se3_exp(torch.tensor([0, 0, 0, 0, 0, -1.0], dtype=torch.float64))
-    restarted.collect(restarted.loop.handle_odometry(_odometry(3.0, moved)))
+    restarted.collect(restarted.loop.handle_odometry(odometry_payload(3.0, moved)))
     resumed = torch.tensor(restarted.poses[-1].T_world_cam, dtype=torch.float64)
     assert float(translation_error(resumed, published @ moved)) < 0.05
     assert restarted.poses[-1].spread < 0.2
@@ -251,8 +183,8 @@ def test_results_with_other_ids_unknown_or_late_requests_are_told_apart(world, g
     harness = Harness(world)
     harness.add_worker("w1")
     eye = torch.eye(4, dtype=torch.float64)
-    harness.collect(harness.loop.handle_odometry(_odometry(0.0, eye)))
-    harness.collect(harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(generator))))
+    harness.collect(harness.loop.handle_odometry(odometry_payload(0.0, eye)))
+    harness.collect(harness.loop.handle_image(image_payload(world, 0.0, world.sample_camera_pose(generator))))
     harness.tick()
     ((_worker, request),) = harness.requests
     result = NerfWorker(world, "w1").handle(request)
@@ -271,7 +203,7 @@ def test_unwritable_state_file_is_counted_and_the_poses_go_on(world, tmp_path):
     harness = Harness(world, config)
     eye = torch.eye(4, dtype=torch.float64)
     for k in range(20):
-        harness.collect(harness.loop.handle_odometry(_odometry(k / 15, eye)))
+        harness.collect(harness.loop.handle_odometry(odometry_payload(k / 15, eye)))
     harness.loop.close()
     assert len(harness.poses) == 20
     failures = harness.loop.counters()["state_save_failures"]
@@ -312,7 +244,7 @@ def test_odometry_stamps_far_in_the_past_start_a_new_odometry_session(world):
     harness = Harness(world, FilterLoopConfig(odometry_horizon=5.0))
     eye = torch.eye(4, dtype=torch.float64)
     for stamp in (100.0, 99.0, 1.0, 1.1):
-        harness.collect(harness.loop.handle_odometry(_odometry(stamp, eye)))
+        harness.collect(harness.loop.handle_odometry(odometry_payload(stamp, eye)))
     counters = harness.loop.counters()
     assert counters["odometry_restarts"] == 1 and counters["bad_stamp_backwards"] == 1 and len(harness.poses) == 3
 
@@ -322,7 +254,7 @@ def test_a_stamp_that_jumped_ahead_blocks_the_pose_stream_only_for_the_resync_ru
     eye = torch.eye(4, dtype=torch.float64)
     # 1.0 jumps 3 s ahead (within the horizon); the clock goes on from 0.2: three stamps before 4.0.
     for stamp in (0.0, 0.1, 4.0, 0.2, 0.3, 0.4, 0.5, 0.6):
-        harness.collect(harness.loop.handle_odometry(_odometry(stamp, eye)))
+        harness.collect(harness.loop.handle_odometry(odometry_payload(stamp, eye)))
     counters = harness.loop.counters()
     assert counters["bad_stamp_backwards"] == 2 and counters["odometry_restarts"] == 1
     assert [pose.stamp for pose in harness.poses] == [0.0, 0.1, 4.0, 0.4, 0.5, 0.6]
@@ -333,7 +265,7 @@ def test_stray_old_odometry_is_dropped_without_resynchronising(world):
     eye = torch.eye(4, dtype=torch.float64)
     # Old duplicates out of order (not increasing among themselves) never restart the session.
     for stamp in (1.0, 1.1, 1.2, 0.9, 0.8, 0.7, 0.7, 1.3):
-        harness.collect(harness.loop.handle_odometry(_odometry(stamp, eye)))
+        harness.collect(harness.loop.handle_odometry(odometry_payload(stamp, eye)))
     counters = harness.loop.counters()
     assert counters["bad_stamp_backwards"] == 4 and counters["odometry_restarts"] == 0
     assert [pose.stamp for pose in harness.poses] == [1.0, 1.1, 1.2, 1.3]
@@ -343,11 +275,11 @@ def test_an_image_stamped_after_the_newest_odometry_is_dropped(world, generator)
     harness = Harness(world, FilterLoopConfig(max_image_age=1.0))
     harness.add_worker("w1")
     pose = world.sample_camera_pose(generator)
-    harness.collect(harness.loop.handle_odometry(_odometry(10.0, torch.eye(4, dtype=torch.float64))))
-    harness.loop.handle_image(_image(world, 12.5, pose))
+    harness.collect(harness.loop.handle_odometry(odometry_payload(10.0, torch.eye(4, dtype=torch.float64))))
+    harness.loop.handle_image(image_payload(world, 12.5, pose))
     harness.tick()
     assert harness.loop.counters()["bad_image_ahead"] == 1 and harness.requests == []
-    harness.loop.handle_image(_image(world, 10.5, pose))
+    harness.loop.handle_image(image_payload(world, 10.5, pose))
     harness.tick()
     assert len(harness.requests) == 1
 
@@ -388,7 +320,7 @@ def test_map_frame_conversions_invert_each_other(generator):
 def test_images_are_replaced_by_newer_ones_before_an_update_starts(world, generator):
     harness = Harness(world)
     for stamp in (0.0, 0.1):
-        harness.loop.handle_image(_image(world, stamp, world.sample_camera_pose(generator)))
+        harness.loop.handle_image(image_payload(world, stamp, world.sample_camera_pose(generator)))
     assert harness.loop.counters()["images_replaced"] == 1
 
 
@@ -407,10 +339,10 @@ def test_pose_is_the_carried_estimate_and_the_particles_follow_after_it(world):
     anchor = loop.localizer.estimate()
     before = loop.localizer.particles.poses.clone()
     odometry = torch.eye(4, dtype=torch.float64)
-    harness.collect(loop.handle_odometry(_odometry(0.0, odometry)))  # first message: no increment yet
+    harness.collect(loop.handle_odometry(odometry_payload(0.0, odometry)))  # first message: no increment yet
     for step in (1, 2):
         odometry = odometry @ increment
-        harness.collect(loop.handle_odometry(_odometry(step / 15, odometry)))
+        harness.collect(loop.handle_odometry(odometry_payload(step / 15, odometry)))
     # the second increment's prediction is still pending; the first one was applied on arrival of the second
     assert loop.localizer.particles.poses.shape == before.shape
     in_map = world.normalization.increment_to_map(increment)
@@ -439,16 +371,16 @@ def test_a_merge_marks_the_estimate_stale_and_the_next_pose_reflects_it(world, g
     pose = world.sample_camera_pose(generator)
     eye = torch.eye(4, dtype=torch.float64)
     for round_ in range(2):
-        harness.collect(loop.handle_odometry(_odometry(round_ / 15, eye)))
+        harness.collect(loop.handle_odometry(odometry_payload(round_ / 15, eye)))
         loop.predict_pending()
-        loop.handle_image(_image(world, round_ / 15, pose))
+        loop.handle_image(image_payload(world, round_ / 15, pose))
         harness.tick()
         harness.answer(harness.requests.pop()[1])
         if round_ == 0:  # the driver's way: a separate pass after the merge
             assert loop.refresh_estimate() and not loop.refresh_estimate()
     # second merge: no explicit refresh; the next odometry refreshes before it carries
     fresh = loop.localizer.estimate()
-    harness.collect(loop.handle_odometry(_odometry(2 / 15, eye)))
+    harness.collect(loop.handle_odometry(odometry_payload(2 / 15, eye)))
     expected = carry_estimate(fresh, None, loop.localizer.noise_sigma())
     assert torch.allclose(torch.tensor(harness.poses[-1].T_world_cam, dtype=torch.float64), world.normalization.map_to_metric(expected.pose), atol=1e-12)
     assert not loop.refresh_estimate()
@@ -475,9 +407,9 @@ def test_a_kidnapped_loop_recovers_around_the_keyframes_that_match_its_images(wo
         eye = torch.eye(4, dtype=torch.float64)
         for step in range(20):
             harness.now = step / 3
-            harness.collect(harness.loop.handle_odometry(_odometry(harness.now, eye)))
+            harness.collect(harness.loop.handle_odometry(odometry_payload(harness.now, eye)))
             harness.loop.predict_pending()
-            harness.collect(harness.loop.handle_image(_image(world, harness.now, before if step < 8 else after)))
+            harness.collect(harness.loop.handle_image(image_payload(world, harness.now, before if step < 8 else after)))
             harness.tick()
             while harness.requests:
                 harness.answer(harness.requests.pop(0)[1])
@@ -493,146 +425,3 @@ def test_the_filter_process_builds_the_keyframe_index_only_when_its_configuratio
     loop = build_loop(FilterProcessConfig(map="world", localizer=str(with_keyframes), device="cpu"))
     assert len(loop.localizer.keyframes) == 200 and loop.localizer.keyframes.matches(ProceduralWorld.default().default_intrinsics)
     assert build_loop(FilterProcessConfig(map="world", localizer="tracking", device="cpu")).localizer.keyframes is None
-
-
-def test_the_first_update_after_a_global_start_is_seeded_at_the_keyframes_and_sized_by_the_ray_budget(world):
-    """A uniform start with ``keyframe_start.share = 0.9``: the first request already carries 270
-    of the 300 particles around the 8 keyframes most like the image (one is 3 cm and 0.6° from the
-    camera: some particles lie within 0.3 units and 10° of it, none of the uniform start did), and looks at
-    ray_budget // 300 = 20 pixels instead of 64."""
-    generator = torch.Generator().manual_seed(3)
-    keyframe_poses = torch.stack([world.sample_camera_pose(generator) for _ in range(60)])
-    camera = keyframe_poses[17] @ se3_exp(torch.tensor([0.0, 0.01, 0.0, 0.02, 0.0, -0.02], dtype=torch.float64))
-    settings = preset("llff", keyframe_start={"share": 0.9}, measurement={"pixels": 64, "ray_budget": 6000})
-    index = build_keyframe_index(world.render_rays, keyframe_poses, world.default_intrinsics)
-    harness = Harness(world, localizer_config=settings, keyframes=index)
-    harness.add_worker("w1")
-
-    def near_camera(poses: torch.Tensor) -> int:
-        poses, truth = poses.double(), camera.expand(len(poses), 4, 4)
-        return int(((translation_error(poses, truth) < 0.3) & (rotation_error_deg(poses, truth) < 10.0)).sum())
-
-    assert near_camera(harness.loop.localizer.particles.poses) == 0
-    harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
-    harness.loop.predict_pending()
-    harness.collect(harness.loop.handle_image(_image(world, 0.0, camera)))
-    harness.tick()
-    ((_, request),) = harness.requests
-    assert len(request.pixels) == 20
-    assert near_camera(torch.tensor(request.poses, dtype=torch.float64).reshape(-1, 4, 4)) > 0
-
-
-def test_update_requests_carry_the_exposure_invariant_likelihood(world) -> None:
-    """A localizer file that sets ``measurement.exposure_gain_range`` (configs/kitchen_single_image.toml)
-    is scored the same way live: every shard of an update asks the workers for that range; without it, for none."""
-    settings = localizer_config(str(REPO_ROOT / "configs" / "kitchen_single_image.toml"))
-    assert settings.measurement.exposure_gain_range == (0.5, 2.0)
-    for measurement, expected in ((settings.measurement.model_dump(), (0.5, 2.0)), ({}, None)):
-        harness = Harness(world, localizer_config=preset("llff", measurement=measurement))
-        harness.add_worker("w1")
-        harness.add_worker("w2")
-        harness.collect(harness.loop.handle_odometry(_odometry(0.0, torch.eye(4, dtype=torch.float64))))
-        harness.loop.predict_pending()
-        harness.collect(harness.loop.handle_image(_image(world, 0.0, world.sample_camera_pose(torch.Generator().manual_seed(0)))))
-        harness.tick()
-        assert len(harness.requests) == 2 and all(request.exposure_gain_range == expected for _, request in harness.requests)
-
-
-def test_a_converged_cloud_is_weighed_by_reprojection_live(world) -> None:
-    """With ``measurement.warp``: a tight cloud's update asks every worker for the same re-projection
-    (reference pose, seed, image), and the answers merge like any other; a spread cloud renders."""
-    truth = world.sample_camera_pose(torch.Generator().manual_seed(0))
-    settings = preset("llff", measurement={"warp": {"max_spread": 0.05, "pixels": 64, "stride": 4}})
-    for spread, warped in ((1e-3, True), (0.3, False)):
-        harness = Harness(world, FilterLoopConfig(start="wait"), localizer_config=settings)
-        harness.add_worker("w1")
-        harness.add_worker("w2")
-        covariance = torch.diag(torch.tensor([1e-4] * 3 + [spread**2] * 3, dtype=torch.float64))
-        harness.start_at(truth, covariance)
-        harness.collect(harness.loop.handle_image(_image(world, 0.0, truth)))
-        harness.tick()
-        warps = [request.warp for _, request in harness.requests]
-        assert len(warps) == 2
-        if not warped:
-            assert warps == [None, None]
-            continue
-        assert warps[0] is not None and warps[0] == warps[1]
-        reference = torch.tensor(warps[0].reference_pose, dtype=torch.float64)
-        assert float(translation_error(reference, truth)) < 0.01
-        while harness.requests:
-            harness.answer(harness.requests.pop(0)[1])
-        assert harness.loop.localizer.counters["merged"] == 1
-
-
-def _rgbd_image(world: ProceduralWorld, stamp: float, pose: torch.Tensor, depth_mm: np.ndarray, camera: PinholeIntrinsics) -> bytes:
-    pixels = (world.render_image(pose) * 255).round().to(torch.uint8).numpy()
-    intrinsics = world.default_intrinsics
-    header = ImageHeader(
-        stamp=stamp,
-        encoding="rgb8",
-        width=intrinsics.width,
-        height=intrinsics.height,
-        intrinsics=intrinsics,
-        depth=DepthHeader(width=camera.width, height=camera.height, intrinsics=camera),
-    )
-    return encode_image(header, pixels, depth_mm)
-
-
-def test_rgbd_frames_send_the_same_depth_part_to_every_worker(world) -> None:
-    """With ``measurement.depth`` an RGB-D frame's update carries the depth image, its camera and the same
-    depth pixels (valid readings) in every shard, and merges; a colour-only frame goes without (warned
-    once); without ``measurement.depth`` the depth is not sent; a depth image with no reading is counted
-    and the update goes on with colour alone."""
-    truth = world.sample_camera_pose(torch.Generator().manual_seed(0))
-    camera = PinholeIntrinsics(fx=20.0, fy=20.0, cx=10.0, cy=7.5, width=20, height=15)
-    depth_mm = np.full((15, 20), 2000, dtype=np.uint16)
-    depth_mm[:5] = 0
-    with_depth = preset("llff", measurement={"depth": {"pixels": 12}})
-    for settings, payload, sends in (
-        (with_depth, _rgbd_image(world, 0.0, truth, depth_mm, camera), True),
-        (with_depth, _image(world, 0.0, truth), False),
-        (preset("llff"), _rgbd_image(world, 0.0, truth, depth_mm, camera), False),
-        (with_depth, _rgbd_image(world, 0.0, truth, np.zeros_like(depth_mm), camera), False),
-    ):
-        harness = Harness(world, FilterLoopConfig(start="wait"), localizer_config=settings)
-        harness.add_worker("w1")
-        harness.add_worker("w2")
-        covariance = torch.diag(torch.tensor([1e-4] * 6, dtype=torch.float64))
-        harness.start_at(truth, covariance)
-        harness.collect(harness.loop.handle_image(payload))
-        harness.tick()
-        parts = [request.depth for _, request in harness.requests]
-        assert len(parts) == 2
-        if not sends:
-            assert parts == [None, None]
-            continue
-        assert parts[0] is not None and parts[0] == parts[1]
-        assert parts[0].intrinsics == camera and len(parts[0].pixels) == 12 and all(v >= 5 for _, v in parts[0].pixels)
-        assert parts[0].image == depth_mm.astype("<u2").tobytes()
-        while harness.requests:
-            harness.answer(harness.requests.pop(0)[1])
-        assert harness.loop.localizer.counters["merged"] == 1
-        assert harness.loop.dispatcher.counters["updates_with_depth"] == 1
-    assert harness.loop.counters()["depth_without_readings"] == 1 and harness.loop.bad.total == 0
-
-
-def test_repeated_updates_on_one_image_wait_for_the_previous_merge(world) -> None:
-    """``updates_per_image`` 2: the image's second update starts only after its first has merged, none
-    after that, and a newer image starts afresh; with 1 (the default) an image is used once."""
-    truth = world.sample_camera_pose(torch.Generator().manual_seed(0))
-    for uses, expected in ((2, [1, 0, 1, 0, 1]), (1, [1, 0, 0, 0, 1])):
-        harness = Harness(world, FilterLoopConfig(start="wait", updates_per_image=uses), localizer_config=preset("llff"))
-        harness.add_worker("w1")
-        covariance = torch.diag(torch.tensor([1e-4] * 3 + [1e-4] * 3, dtype=torch.float64))
-        harness.start_at(truth, covariance)
-        started = []
-        for step in range(5):
-            if step in (0, 4):
-                harness.collect(harness.loop.handle_image(_image(world, 0.0, truth)))
-            before = len(harness.requests)
-            harness.tick()
-            started.append(len(harness.requests) - before)
-            if step >= 1:  # the first update stays in flight over the second tick
-                while harness.requests:
-                    harness.answer(harness.requests.pop(0)[1])
-        assert started == expected
