@@ -40,7 +40,7 @@ from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import RadianceMap, surface_renderer
 from locnerf.field.stored_map import StoredMap
 from locnerf.filter.annealing import AnnealingStage
-from locnerf.filter.depth_measurement import DepthConfig, DepthObservation, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
+from locnerf.filter.depth_measurement import DepthConfig, render_depth_image, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
 from locnerf.filter.estimate import estimate_from_particles
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels, sample_pixels_of_image
 from locnerf.filter.motion import propagate_poses
@@ -54,7 +54,6 @@ from locnerf.messages.codec import decode, decode_image, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, UpdateRequest, UpdateResult
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import SurfaceRays, render_views
-from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 
 
 def add_target(targets: argparse._SubParsersAction) -> None:
@@ -125,10 +124,7 @@ def depth_targets(
 ) -> dict[str, Callable[[], object]]:
     """``depth_rendered`` and ``depth_warp``: the depth term of poses (N, 4, 4) for the map's own depth image at ``view`` (4, 4)."""
     config = measurement.depth
-    origins, directions = rays_from_poses_and_pixels(view[None].float(), pixel_grid(intrinsics, device=view.device), intrinsics)
-    _, points, opacity = render_surface(origins[0], directions[0])
-    depth = -((points - view[:3, 3].to(points)) @ view[:3, 2].to(points))
-    observation = DepthObservation(torch.where(opacity >= 0.5, depth, torch.zeros_like(depth)).reshape(intrinsics.height, intrinsics.width).float(), intrinsics)
+    observation = render_depth_image(render_surface, view.float(), intrinsics)
     depth_pixels = sample_depth_pixels(observation, config, generator).to(view.device)
     return {
         "depth_rendered": lambda: rendered_depth_log_likelihoods(poses, observation, depth_pixels, render_surface, config),

@@ -22,8 +22,8 @@ import torch
 
 from cli.up import ServiceConfigs, start_services
 from locnerf.errors import LocnerfInputError
-from locnerf.eval.tracking import ConvergenceConfig, error_series
-from locnerf.eval.tracking_live import LiveObservations, live_record, live_summary
+from locnerf.eval.tracking import ConvergenceConfig
+from locnerf.eval.tracking_live import LiveObservations, live_summary
 from locnerf.maps.source import WORLD, open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
@@ -137,7 +137,5 @@ def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate:
     normalization = open_map(args.map, torch.device("cpu")).normalization
     events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
     observed = record_run(service_configs(args, image_rate, vio, events), args.logs, sensor_seconds)
-    report = live_summary(observed, normalization, args.kidnap_at, criterion)
-    if args.json:
-        report["series"] = error_series(live_record(observed, normalization, args.kidnap_at))
+    report = live_summary(observed, normalization, args.kidnap_at, criterion, series=args.json)
     return report | {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}

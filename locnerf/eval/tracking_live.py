@@ -25,7 +25,7 @@ from typing import Any
 
 import torch
 
-from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord, summarize_tracking
+from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord, error_series, summarize_tracking
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import rotation_error_deg, translation_error
 
@@ -110,11 +110,15 @@ def live_rates(observed: LiveObservations) -> dict[str, Any]:
     return rates
 
 
-def live_summary(observed: LiveObservations, normalization: MapNormalization, kidnap_at: float | None, criterion: ConvergenceConfig) -> dict[str, Any]:
+def live_summary(
+    observed: LiveObservations, normalization: MapNormalization, kidnap_at: float | None, criterion: ConvergenceConfig, series: bool = False
+) -> dict[str, Any]:
     """The offline report of the run, its rates, and the headline figures at the top level:
     ``translation_median`` / ``rotation_median_deg`` after convergence, ``converged_after_s``
-    (sensor seconds from the first scored pose), and the kidnap recovery when there was one (None where not reached)."""
-    summary = summarize_tracking(live_record(observed, normalization, kidnap_at), criterion)
+    (sensor seconds from the first scored pose), and the kidnap recovery when there was one (None where not reached);
+    with ``series``, also the error series of the scored poses (``series``, as the offline JSON report)."""
+    record = live_record(observed, normalization, kidnap_at)
+    summary = summarize_tracking(record, criterion)
     start = summary["start"]
     after = start.get("after_convergence", {})
     headline: dict[str, Any] = {
@@ -125,4 +129,4 @@ def live_summary(observed: LiveObservations, normalization: MapNormalization, ki
     if kidnap_at is not None:
         kidnap = summary.get("kidnap", {})
         headline |= {"kidnap_recovery_updates": kidnap.get("updates_to_converge"), "kidnap_recovery_s": kidnap.get("seconds_to_converge")}
-    return headline | live_rates(observed) | summary
+    return headline | live_rates(observed) | summary | ({"series": error_series(record)} if series else {})

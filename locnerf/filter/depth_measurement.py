@@ -34,13 +34,14 @@ import torch
 from locnerf.filter.measurement import DepthConfig, draw_uniformly, log_likelihood_from_errors, pixel_coordinates
 from locnerf.filter.warp import SurfaceRays, points_in_cameras, project_camera_points
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.render.rays import rays_from_poses_and_pixels
+from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 
 __all__ = [
     "DepthConfig",
     "DepthObservation",
     "depth_log_likelihoods",
     "read_depth_at",
+    "render_depth_image",
     "rendered_depth_log_likelihoods",
     "sample_depth_pixels",
     "warped_depth_log_likelihoods",
@@ -74,6 +75,17 @@ class DepthObservation:
         """(Hd, Wd) bool: finite readings within [min_depth, max_depth]."""
         depth = self.depth
         return torch.isfinite(depth) & (depth >= config.min_depth) & (depth <= config.max_depth)
+
+
+def render_depth_image(render_surface: SurfaceRays, pose: torch.Tensor, intrinsics: PinholeIntrinsics) -> DepthObservation:
+    """The depth image the map predicts from ``pose`` (4, 4) with the camera ``intrinsics``: each pixel's
+    expected surface point's depth along the optical axis, 0 (no reading) where the ray met nothing.
+    (Benchmarks and tests observe it; the likelihoods above render only the pixels they need.)"""
+    origins, directions = rays_from_poses_and_pixels(pose[None], pixel_grid(intrinsics, device=pose.device).to(pose.dtype), intrinsics)
+    _, points, opacity = render_surface(origins[0], directions[0])
+    depth = -((points - origins[0].to(points)) @ pose[:3, 2].to(points))
+    depth = torch.where(opacity >= _MIN_OPACITY, depth, torch.zeros_like(depth))
+    return DepthObservation(depth.reshape(intrinsics.height, intrinsics.width).float(), intrinsics)
 
 
 def sample_depth_pixels(observation: DepthObservation, config: DepthConfig, generator: torch.Generator) -> torch.Tensor:

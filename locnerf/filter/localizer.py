@@ -445,17 +445,18 @@ class Localizer:
         self.seed_from_image(image, intrinsics)
         snap = self.snapshot()
         config = self.config.measurement
+        depth_config = config.depth  # not None whenever depth is (_depth_to_use)
         reference_pose = self.warp_reference(snap)
         if reference_pose is not None:
             if render_surface is None:
                 raise ValueError("measurement.warp is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave warp unset for it")
-            depth_pixels = config.depth.pixels if depth is not None and config.depth is not None else 0
+            depth_pixels = depth_config.pixels if depth is not None and depth_config is not None else 0
             depth_camera = depth.intrinsics if depth is not None else None
             reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator, depth_pixels, depth_camera)
             log_likelihoods = warp_log_likelihoods(snap.poses, reference, image.to(self.device), intrinsics, config.exponent, config.exposure_gain_range)
             rays = reference.rays
-            if depth is not None and config.depth is not None:
-                log_likelihoods = log_likelihoods + warped_depth_log_likelihoods(snap.poses, reference.depth_points, depth, config.depth).to(log_likelihoods)
+            if depth is not None and depth_config is not None:
+                log_likelihoods = log_likelihoods + warped_depth_log_likelihoods(snap.poses, reference.depth_points, depth, depth_config).to(log_likelihoods)
         else:
             pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
             log_likelihoods = particle_log_likelihoods(
@@ -469,10 +470,10 @@ class Localizer:
                 config.exposure_gain_range,
             )
             rays = len(pixels) * snap.poses.shape[0]
-            if depth is not None and render_surface is not None and config.depth is not None:
-                depth_pixels = sample_depth_pixels(depth, config.depth, self.generator)
+            if depth is not None and depth_config is not None and render_surface is not None:
+                depth_pixels = sample_depth_pixels(depth, depth_config, self.generator)
                 log_likelihoods = log_likelihoods + rendered_depth_log_likelihoods(
-                    snap.poses, depth, depth_pixels.to(self.device), render_surface, config.depth, config.ray_chunk
+                    snap.poses, depth, depth_pixels.to(self.device), render_surface, depth_config, config.ray_chunk
                 ).to(log_likelihoods)
                 rays += len(depth_pixels) * snap.poses.shape[0]
         warped = reference_pose is not None

@@ -51,6 +51,10 @@ def test_summary_carries_the_headline_figures():
     assert summary["converged_after_s"] == 0.0 and summary["translation_median"] == pytest.approx(0.01)
     assert summary["kidnap_recovery_updates"] == 1  # the update on the kidnap stamp itself
     assert summary["realtime_factor"] == pytest.approx(1.0)
+    assert "series" not in summary
+    series = live_summary(observations(), MapNormalization(), 1.0, ConvergenceConfig(hold=0.5), series=True)["series"]
+    record = live_record(observations(), MapNormalization(), 1.0)
+    assert series["stamps"] == record.stamps.tolist() and series["translation_error"] == record.translation_error.tolist()
 
 
 def test_nothing_to_score_is_refused():

@@ -13,6 +13,7 @@ from locnerf.filter.depth_measurement import (
     DepthConfig,
     DepthObservation,
     depth_log_likelihoods,
+    render_depth_image,
     rendered_depth_log_likelihoods,
     sample_depth_pixels,
     warped_depth_log_likelihoods,
@@ -21,7 +22,6 @@ from locnerf.filter.measurement import WarpConfig
 from locnerf.filter.warp import render_reference
 from locnerf.geometry import pose_inverse
 from locnerf.render import PinholeIntrinsics
-from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 from locnerf.sim.world import ProceduralWorld
 from tests.filter.world_poses import poses_around, true_pose
 
@@ -36,12 +36,8 @@ def world() -> ProceduralWorld:
 
 
 def _depth_image(world: ProceduralWorld, pose: torch.Tensor, camera: PinholeIntrinsics = DEPTH) -> DepthObservation:
-    """The exact depth image seen from ``pose`` (4, 4): depth along the optical axis, 0 where a ray meets nothing."""
-    origins, directions = rays_from_poses_and_pixels(pose[None].double(), pixel_grid(camera).double(), camera)
-    _, points, opacity = world.render_surface(origins[0], directions[0])
-    depth = -((points - origins[0]) @ pose[:3, 2])
-    depth = torch.where(opacity > 0.5, depth, torch.zeros_like(depth))
-    return DepthObservation(depth.reshape(camera.height, camera.width).float(), camera)
+    """The exact depth image seen from ``pose`` (4, 4) (float64 rays): depth along the optical axis, 0 where a ray meets nothing."""
+    return render_depth_image(world.render_surface, pose.double(), camera)
 
 
 def _naive_depth_log_likelihood(predicted: list[float], observed: list[float], config: DepthConfig) -> float:

@@ -14,14 +14,13 @@ import torch
 from locnerf.data.detect import read_dataset
 from locnerf.data.posed_images import PosedImages
 from locnerf.field.protocol import MapNormalization
-from locnerf.filter.depth_measurement import DepthConfig, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
+from locnerf.filter.depth_measurement import DepthConfig, render_depth_image, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels
 from locnerf.filter.warp import render_reference, warp_log_likelihoods
 from locnerf.geometry.se3 import pose_inverse, se3_exp
 from locnerf.messages.codec import decode, decode_image, decode_rgbd, encode
 from locnerf.messages.schemas import DepthRequest, Odometry, UpdateRequest, WarpRequest
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, depth_millimetres
 from locnerf.sim.sensors import VioConfig, simulate_odometry
 from locnerf.sim.world import ProceduralWorld
@@ -285,15 +284,6 @@ def test_worker_warps_as_the_in_process_localizer_does(world, generator):
         WarpRequest.model_validate(request.warp.model_dump() | {"measurement": {}})
 
 
-def _world_depth_millimetres(world: ProceduralWorld, pose: torch.Tensor, camera: PinholeIntrinsics) -> np.ndarray:
-    """(H, W) uint16 millimetres of the world's surfaces seen from ``pose`` along the camera's optical axis (the world is metric)."""
-    origins, directions = rays_from_poses_and_pixels(pose[None].double(), pixel_grid(camera), camera)
-    _, points, opacity = world.render_surface(origins[0], directions[0])
-    depth = -((points - pose[:3, 3].double()) @ pose[:3, 2].double())
-    depth = torch.where(opacity >= 0.5, depth, torch.zeros_like(depth))
-    return depth_millimetres(depth.reshape(camera.height, camera.width))
-
-
 def test_worker_adds_the_depth_term_of_an_rgbd_request_as_the_localizer_does(world, generator):
     """The depth term joins the colour term: rendered from every pose for the request's depth pixels, or
     re-projected from the reference render's depth points (the same seed, so the same on every shard);
@@ -302,7 +292,7 @@ def test_worker_adds_the_depth_term_of_an_rgbd_request_as_the_localizer_does(wor
     depth_config = DepthConfig(pixels=20)
     request, poses, image, measurement = _warp_request(world, generator)
     truth = torch.tensor(request.warp.reference_pose, dtype=torch.float64)
-    millimetres = _world_depth_millimetres(world, truth, camera)
+    millimetres = depth_millimetres(render_depth_image(world.render_surface, truth, camera).depth)
     observation = depth_observation(millimetres, camera, scale=1.0)
     measurement = measurement.model_copy(update={"depth": depth_config})
     depth_pixels = sample_depth_pixels(observation, depth_config, generator)
