@@ -13,6 +13,7 @@ from tqdm import tqdm
 from cli.flags import NO_DEPTH_HELP, from_flags, without_depth
 from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
+from locnerf.data.colour_camera import on_map_camera
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.paper_logs import read_logged_trials
@@ -66,11 +67,11 @@ def run(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--trials {args.trials}: expected >= 1 seeded trials, or --starts with logged ones")
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
-    pool = read_dataset(args.data, split=args.split, downscale=args.downscale)
+    pool = on_map_camera(read_dataset(args.data, split=args.split, downscale=args.downscale), radiance_map)
     generator = torch.Generator().manual_seed(args.seed)
     views = []
     if args.starts is not None:
-        every_frame = pool if args.split == "all" else read_dataset(args.data, split="all", downscale=args.downscale)
+        every_frame = pool if args.split == "all" else on_map_camera(read_dataset(args.data, split="all", downscale=args.downscale), radiance_map)
         trials = read_logged_trials(args.starts, scene=args.scene or args.data.name)
         views += logged_views(every_frame, trials, held_out_frames(args.data, "all", args.downscale))
     if args.trials:

@@ -21,6 +21,7 @@ from typing import Any
 import torch
 
 from cli.up import ServiceConfigs, start_services
+from locnerf.data.colour_camera import colour_camera_of
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_summary
@@ -42,8 +43,8 @@ STARTUP_TIMEOUT_S = 240.0
 SETTLE_S = 3.0  # wall seconds after the ingest's last message for the last poses and results
 
 
-def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str, float]) -> dict[str, Any]:
-    """The ingest's ``scenario`` fields (``ScenarioSourceConfig``) for the command's arguments."""
+def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str, float], colour_camera: torch.Tensor | None = None) -> dict[str, Any]:
+    """The ingest's ``scenario`` fields (``ScenarioSourceConfig``) for the command's arguments and the map's colour camera."""
     return {
         "sequence": args.sequence if args.sequence == WORLD else str(Path(args.sequence).resolve()),
         "split": args.split,
@@ -54,10 +55,13 @@ def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str
         "image_rate": image_rate,
         "kidnap_at": args.kidnap_at,
         "vio": vio,
+        "T_depth_colour": None if colour_camera is None else colour_camera.tolist(),
     }
 
 
-def service_configs(args: argparse.Namespace, image_rate: float, vio: dict[str, float], events: int) -> ServiceConfigs:
+def service_configs(
+    args: argparse.Namespace, image_rate: float, vio: dict[str, float], events: int, colour_camera: torch.Tensor | None = None
+) -> ServiceConfigs:
     """The ingest, filter and worker configurations of the live run.
 
     The ingest produces its whole stream (``events`` events) before the clock starts, as the load
@@ -66,7 +70,9 @@ def service_configs(args: argparse.Namespace, image_rate: float, vio: dict[str, 
     map_spec = args.map if args.map == WORLD else str(Path(args.map).resolve())
     localizer = str(Path(args.config).resolve()) if args.config is not None else args.preset
     common = {"robot_id": ROBOT_ID, "seed": args.seed}
-    ingest = IngestConfig(source="scenario", prefetch_events=events, prefill=True, speed=1.0, scenario=scenario_settings(args, image_rate, vio), **common)
+    ingest = IngestConfig(
+        source="scenario", prefetch_events=events, prefill=True, speed=1.0, scenario=scenario_settings(args, image_rate, vio, colour_camera), **common
+    )
     loop = FilterLoopConfig(updates_per_image=args.updates_per_image)
     filter_config = FilterProcessConfig(map=map_spec, device=args.device, localizer=localizer, loop=loop, **common)
     worker = WorkerConfig(map=map_spec, device=args.device, robot_id=ROBOT_ID)
@@ -134,8 +140,9 @@ def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate:
     """
     if args.workers < 1:
         raise LocnerfInputError(f"--workers {args.workers}: expected at least 1")
-    normalization = open_map(args.map, torch.device("cpu")).normalization
+    radiance_map = open_map(args.map, torch.device("cpu"))
+    colour_camera = colour_camera_of(getattr(radiance_map, "metadata", None) or {})
     events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
-    observed = record_run(service_configs(args, image_rate, vio, events), args.logs, sensor_seconds)
-    report = live_summary(observed, normalization, args.kidnap_at, criterion, series=args.json)
+    observed = record_run(service_configs(args, image_rate, vio, events, colour_camera), args.logs, sensor_seconds)
+    report = live_summary(observed, radiance_map.normalization, args.kidnap_at, criterion, series=args.json)
     return report | {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}

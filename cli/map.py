@@ -13,6 +13,7 @@ import torch
 
 from cli.flags import from_flags
 from locnerf.data import read_dataset
+from locnerf.data.colour_camera import on_map_camera
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.plots import plot_images_beside_renders
@@ -43,6 +44,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument("--split", default="train", help="split to build from (the held-out figures use the test split)")
     build.add_argument("--stride", type=int, default=1, help="keep every N-th frame of the split")
     build.add_argument("--no-depth", action="store_true", help="build from colour only even when the data set has depth images")
+    build.add_argument(
+        "--no-colour-calibration",
+        action="store_true",
+        help="RGB-D data posed at the depth camera (7-Scenes): keep the colour rays at the depth camera's pose instead of calibrating the colour camera",
+    )
     build.add_argument(
         "--depth-weight", type=float, help=f"weight of the expected-depth loss (RGB-D data; default {RoomConfig().depth_weight}, as BuildConfig.room)"
     )
@@ -91,8 +97,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.set_defaults(func=run_info)
 
 
-def _held_out(data: str, downscale: int | None, split: str = "test", stride: int = 1):
-    return read_dataset(data, split=split, downscale=downscale, skip_missing=True, stride=stride)
+def _held_out(radiance_map, data: str, downscale: int | None, split: str = "test", stride: int = 1):
+    """The views of ``split`` on the camera the map was built for (:func:`on_map_camera`)."""
+    return on_map_camera(read_dataset(data, split=split, downscale=downscale, skip_missing=True, stride=stride), radiance_map)
 
 
 def run_build(args: argparse.Namespace) -> int:
@@ -111,11 +118,12 @@ def run_build(args: argparse.Namespace) -> int:
             "seed": args.seed,
             "field": field,
             "use_depth": not args.no_depth,
+            "calibrate_colour_camera": not args.no_colour_calibration,
             **({} if args.depth_weight is None else {"depth_weight": args.depth_weight}),
         }
-        config = from_flags(BuildConfig, values, {"use_depth": "--no-depth"})
+        config = from_flags(BuildConfig, values, {"use_depth": "--no-depth", "calibrate_colour_camera": "--no-colour-calibration"})
         radiance_map = build_map(train, config, device=device, progress=True)
-    held_out = _held_out(args.data, args.downscale)
+    held_out = _held_out(radiance_map, args.data, args.downscale)
     scores = evaluate_map(radiance_map.render_rays, held_out, device)
     radiance_map.metadata.update(heldout_psnr=round(scores["psnr"], 3), heldout_ssim=round(scores["ssim"], 4), heldout_views=scores["views"])
     save_map(radiance_map, args.out)
@@ -128,7 +136,7 @@ def run_eval(args: argparse.Namespace) -> int:
     if (args.data is None) == (args.data_option is None):
         raise LocnerfInputError("map eval: name the data set once, as DATA or --data DATA")
     radiance_map = load_map(args.map, device)
-    scores = evaluate_map(radiance_map.render_rays, _held_out(args.data or args.data_option, args.downscale, args.split, args.stride), device)
+    scores = evaluate_map(radiance_map.render_rays, _held_out(radiance_map, args.data or args.data_option, args.downscale, args.split, args.stride), device)
     if args.json:
         print(json.dumps(scores))
     else:
@@ -169,7 +177,7 @@ def run_compare(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--views {args.views}: expected >= 1")
     device = resolve_device(args.device)
     radiance_map = load_map(args.map, device)
-    views = _held_out(args.data, args.downscale, args.split)
+    views = _held_out(radiance_map, args.data, args.downscale, args.split)
     panels = []
     for position in np.linspace(0, len(views) - 1, args.views).round().astype(int).tolist():
         rendering = render_image(radiance_map.render_rays, views.T_world_cam[position].to(device, torch.float32), views.intrinsics).cpu()

@@ -14,16 +14,20 @@ import torch
 
 from locnerf.filter.depth_measurement import DepthObservation, sample_depth_pixels
 from locnerf.filter.measurement import MeasurementConfig
-from locnerf.messages.schemas import DepthHeader, DepthRequest
+from locnerf.messages.schemas import DepthHeader, DepthRequest, Matrix
 from locnerf.render.camera import PinholeIntrinsics
 
 MILLIMETRES_PER_METRE = 1000.0
 
 
-def depth_observation(depth_mm: np.ndarray, intrinsics: PinholeIntrinsics, scale: float, device: torch.device | str = "cpu") -> DepthObservation:
-    """A wire depth image (Hd, Wd) uint16 millimetres -> the observation in map units (``scale`` map units per metre) on ``device``."""
+def depth_observation(
+    depth_mm: np.ndarray, intrinsics: PinholeIntrinsics, scale: float, device: torch.device | str = "cpu", T_cam_depth: Matrix | None = None
+) -> DepthObservation:
+    """A wire depth image (Hd, Wd) uint16 millimetres, and the depth camera's offset from the colour camera
+    (4×4, metres; None: none) -> the observation in map units (``scale`` map units per metre) on ``device``."""
     metres = torch.from_numpy(depth_mm.astype(np.float32)).to(device) / MILLIMETRES_PER_METRE
-    return DepthObservation(metres * scale, intrinsics)
+    offset = None if T_cam_depth is None else torch.tensor(T_cam_depth, dtype=torch.float64, device=device)
+    return DepthObservation(metres, intrinsics, offset).scaled(scale)
 
 
 def depth_request(depth_mm: np.ndarray, header: DepthHeader, measurement: MeasurementConfig, scale: float, generator: torch.Generator) -> DepthRequest:
@@ -38,4 +42,4 @@ def depth_request(depth_mm: np.ndarray, header: DepthHeader, measurement: Measur
     observation = depth_observation(depth_mm, header.intrinsics, scale)
     pixels = sample_depth_pixels(observation, measurement.depth, generator)
     image = np.ascontiguousarray(depth_mm, dtype="<u2").tobytes()
-    return DepthRequest(image=image, intrinsics=header.intrinsics, measurement=measurement, pixels=pixels.tolist())
+    return DepthRequest(image=image, intrinsics=header.intrinsics, T_cam_depth=header.T_cam_depth, measurement=measurement, pixels=pixels.tolist())

@@ -30,9 +30,12 @@ class PosedImages:
         indices: K frame numbers, unique within the data set (positions in its full frame list).
         depths: (K, Hd, Wd) float32 depth along each depth camera's optical axis in map units,
             0 where the sensor gave none; None for colour-only data sets.
-        depth_intrinsics: the camera of ``depths``. The depth camera sits at ``T_world_cam``
-            (RGB-D data sets pose the depth camera and use the pose for colour too), so the depth
-            images are not registered to the colour images: each is used with its own camera.
+        depth_intrinsics: the camera of ``depths``. The depth images are not registered to the
+            colour images: each is used with its own camera.
+        T_cam_depth: (4, 4) float64 the depth camera's pose in the colour camera's frame (map units),
+            set once the poses were moved onto a calibrated colour camera
+            (:func:`locnerf.data.colour_camera.with_colour_camera`); None: the depth camera sits at
+            ``T_world_cam`` (RGB-D data sets pose the depth camera and, as read, the pose serves both).
     """
 
     images: torch.Tensor
@@ -48,6 +51,7 @@ class PosedImages:
     indices: list[int] = field(default_factory=list)
     depths: torch.Tensor | None = None
     depth_intrinsics: PinholeIntrinsics | None = None
+    T_cam_depth: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         count = self.images.shape[0]
@@ -64,6 +68,8 @@ class PosedImages:
             expected_depth = (count, self.depth_intrinsics.height, self.depth_intrinsics.width)
             if tuple(self.depths.shape) != expected_depth:
                 raise DatasetError(f"depths of shape {tuple(self.depths.shape)}: expected {expected_depth} for {self.source}")
+        if self.T_cam_depth is not None and tuple(self.T_cam_depth.shape) != (4, 4):
+            raise DatasetError(f"T_cam_depth of shape {tuple(self.T_cam_depth.shape)}: expected (4, 4) for {self.source}")
         if not self.indices:
             object.__setattr__(self, "indices", list(range(count)))
 
@@ -87,7 +93,13 @@ class PosedImages:
             indices=[self.indices[i] for i in positions],
             depths=self.depths[index] if self.depths is not None else None,
             depth_intrinsics=self.depth_intrinsics,
+            T_cam_depth=self.T_cam_depth,
         )
+
+    def depth_poses(self) -> torch.Tensor:
+        """(K, 4, 4) float64 poses of the depth camera: ``T_world_cam · T_cam_depth``."""
+        poses = self.T_world_cam.double()
+        return poses if self.T_cam_depth is None else poses @ self.T_cam_depth.double()
 
     def without_depth(self) -> PosedImages:
         """The same images without their depth images (RGB-only map building)."""

@@ -43,7 +43,7 @@ def frame_depth(posed: PosedImages, position: int) -> DepthObservation | None:
     """The depth image of frame ``position`` of ``posed`` (map units, its own camera), None for colour-only data."""
     if posed.depths is None or posed.depth_intrinsics is None:
         return None
-    return DepthObservation(posed.depths[position], posed.depth_intrinsics)
+    return DepthObservation(posed.depths[position], posed.depth_intrinsics, posed.T_cam_depth)
 
 
 def logged_views(posed: PosedImages, trials: list[LoggedTrial], held_out: set[int]) -> list[View]:

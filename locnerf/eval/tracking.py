@@ -100,7 +100,7 @@ def search_region(radiance_map: RadianceMap) -> SearchRegion:
 def frame_depth(scenario: TrackingScenario, tick: int, scale: float) -> DepthObservation | None:
     """The depth image taken at index ``tick`` in map units (``scale`` map units per metre); None without one."""
     depth = scenario.depth(tick)
-    return None if depth is None else DepthObservation(depth.depth * scale, depth.intrinsics)
+    return None if depth is None else depth.scaled(scale)
 
 
 def run_tracking(

@@ -21,8 +21,9 @@ Two ways to get d_ij:
   prediction is their camera-frame depth, the observation the depth image at their projection
   (:func:`read_depth_at`: bilinear on a smooth surface, else the nearest pixel). No rendering per particle.
 
-The depth camera sits at the particle pose (7-Scenes poses serve both cameras) with its own
-intrinsics; depth images are never resampled onto the colour grid.
+The depth camera sits at the particle pose times ``DepthObservation.T_cam_depth`` (its pose in the
+colour camera's frame: 7-Scenes' calibrated offset, :mod:`locnerf.data.colour_camera`; at the particle
+pose itself when None) with its own intrinsics; depth images are never resampled onto the colour grid.
 """
 
 from __future__ import annotations
@@ -57,11 +58,14 @@ class DepthObservation:
 
     Attributes:
         depth: (Hd, Wd) float depth along the depth camera's optical axis, map units; 0 = no reading.
-        intrinsics: the depth camera (Wd × Hd); it sits at the particle pose.
+        intrinsics: the depth camera (Wd × Hd).
+        T_cam_depth: (4, 4) the depth camera's pose in the particle (colour) camera's frame, translation
+            in the units of ``depth``; None: the depth camera sits at the particle pose.
     """
 
     depth: torch.Tensor
     intrinsics: PinholeIntrinsics
+    T_cam_depth: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         expected = (self.intrinsics.height, self.intrinsics.width)
@@ -70,6 +74,20 @@ class DepthObservation:
             raise ValueError(f"DepthObservation.depth of shape {shape}: expected (Hd, Wd) = {expected} for the depth intrinsics")
         if not self.depth.is_floating_point():
             raise ValueError(f"DepthObservation.depth of dtype {self.depth.dtype}: expected floating-point depths in map units")
+        if self.T_cam_depth is not None and tuple(self.T_cam_depth.shape) != (4, 4):
+            raise ValueError(f"DepthObservation.T_cam_depth of shape {tuple(self.T_cam_depth.shape)}: expected (4, 4)")
+
+    def scaled(self, scale: float) -> DepthObservation:
+        """The same observation with depths and the depth camera's offset in units ``scale`` times larger."""
+        offset = None
+        if self.T_cam_depth is not None:
+            offset = self.T_cam_depth.clone()
+            offset[:3, 3] *= scale
+        return DepthObservation(self.depth * scale, self.intrinsics, offset)
+
+    def depth_poses(self, poses: torch.Tensor) -> torch.Tensor:
+        """(N, 4, 4) depth-camera poses of the particle poses (N, 4, 4)."""
+        return poses if self.T_cam_depth is None else poses @ self.T_cam_depth.to(poses.device, poses.dtype)
 
     def valid(self, config: DepthConfig) -> torch.Tensor:
         """(Hd, Wd) bool: finite readings within [min_depth, max_depth]."""
@@ -149,8 +167,9 @@ def rendered_depth_log_likelihoods(
     if pixels.ndim != 2 or pixels.shape[-1] != 2:
         raise ValueError(f"pixels: expected shape (M, 2) as (u, v), got {tuple(pixels.shape)}")
     count = pixels.shape[0]
-    origins, directions = rays_from_poses_and_pixels(poses, pixels, observation.intrinsics)
-    axes = poses[:, None, :3, 2].expand_as(directions).reshape(-1, 3)  # each ray's camera +z (the camera looks along -z)
+    depth_poses = observation.depth_poses(poses)
+    origins, directions = rays_from_poses_and_pixels(depth_poses, pixels, observation.intrinsics)
+    axes = depth_poses[:, None, :3, 2].expand_as(directions).reshape(-1, 3)  # each ray's camera +z (the camera looks along -z)
     flat_origins, flat_directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
     predicted = []
     with torch.no_grad():
@@ -214,7 +233,7 @@ def warped_depth_log_likelihoods(poses: torch.Tensor, points: torch.Tensor, obse
     """
     if points.ndim != 2 or points.shape[-1] != 4:
         raise ValueError(f"points: expected shape (M, 4) homogeneous map points, got {tuple(points.shape)}")
-    camera = points_in_cameras(poses, points)
+    camera = points_in_cameras(observation.depth_poses(poses), points)
     pixels, in_front = project_camera_points(camera, observation.intrinsics)
     surface = (points[:, 3].to(poses.device) != 0)[None]
     return depth_log_likelihoods(poses, -camera[..., 2], read_depth_at(observation, pixels, in_front & surface, config), config)

@@ -451,8 +451,8 @@ class Localizer:
             if render_surface is None:
                 raise ValueError("measurement.warp is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave warp unset for it")
             depth_pixels = depth_config.pixels if depth is not None and depth_config is not None else 0
-            depth_camera = depth.intrinsics if depth is not None else None
-            reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator, depth_pixels, depth_camera)
+            depth_camera, T_cam_depth = (depth.intrinsics, depth.T_cam_depth) if depth is not None else (None, None)
+            reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator, depth_pixels, depth_camera, T_cam_depth)
             log_likelihoods = warp_log_likelihoods(snap.poses, reference, image.to(self.device), intrinsics, config.exponent, config.exposure_gain_range)
             rays = reference.rays
             if depth is not None and depth_config is not None:

@@ -85,6 +85,7 @@ def render_reference(
     generator: torch.Generator,
     depth_pixels: int = 0,
     depth_camera: PinholeIntrinsics | None = None,
+    T_cam_depth: torch.Tensor | None = None,
 ) -> WarpReference:
     """Render the reference view at every ``warp.stride``-th pixel and keep M = ``warp.pixels`` of them.
 
@@ -100,7 +101,8 @@ def render_reference(
             among the pixels that met a surface and, with ``depth_camera``,
             project into the depth image from the reference pose at least ``DEPTH_BORDER`` of its size
             from its border (drawn after the M, so the M do not depend on them); 0: none.
-        depth_camera: the depth camera (it sits at the pose); None: no check against its view.
+        depth_camera: the depth camera; None: no check against its view.
+        T_cam_depth: (4, 4) the depth camera's pose in the camera's frame; None: it sits at the pose.
 
     A depth point outside a particle's depth image counts as the largest residual, so points near the
     border of the depth camera's view (narrower than the colour camera's on a Kinect) would favour
@@ -127,7 +129,8 @@ def render_reference(
         torch.cat((points[index], torch.ones_like(surface, dtype=points.dtype)), dim=-1),
         torch.cat((directions[0].to(points.device, points.dtype)[index], torch.zeros_like(surface, dtype=points.dtype)), dim=-1),
     )
-    depth_points = reference_depth_points(points, seen, pose, depth_pixels, depth_camera, generator)
+    depth_pose = pose if T_cam_depth is None else pose @ T_cam_depth.to(pose)
+    depth_points = reference_depth_points(points, seen, depth_pose, depth_pixels, depth_camera, generator)
     return WarpReference(colours[index].float(), homogeneous.float(), len(pixels), depth_points)
 
 
@@ -138,7 +141,7 @@ def reference_depth_points(
 
     Args:
         points: (R, 3) the render's expected surface points; seen: (R,) bool, those that met a surface.
-        pose: (4, 4) the reference pose, where the depth camera sits.
+        pose: (4, 4) the depth camera's pose at the reference.
     Returns:
         (count, 4) float32 homogeneous points (w = 1), drawn uniformly among the seen ones that project
         at least ``DEPTH_BORDER`` inside the depth image (all seen ones without ``depth_camera``);

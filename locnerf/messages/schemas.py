@@ -36,6 +36,15 @@ def _check_pose(value: Matrix, name: str) -> Matrix:
     return value
 
 
+def _check_rigid(value: Matrix, name: str) -> Matrix:
+    """A 4×4 pose whose rotation is orthonormal with determinant +1 (to 1e-6)."""
+    _check_pose(value, name)
+    rotation = torch.tensor([row[:3] for row in value[:3]], dtype=torch.float64)
+    if not torch.allclose(rotation.T @ rotation, torch.eye(3, dtype=torch.float64), atol=1e-6) or float(torch.linalg.det(rotation)) <= 0:
+        raise ValueError(f"{name}: expected a rigid transform (orthonormal rotation, determinant +1), got {value}")
+    return value
+
+
 def _check_covariance(value: Matrix, name: str) -> Matrix:
     """6×6, finite, symmetric, positive semi-definite (checked with a Cholesky of cov + εI)."""
     _check_matrix(value, 6, 6, name)
@@ -82,13 +91,20 @@ DEPTH_ENCODING = "16UC1"
 class DepthHeader(_Wire):
     """The depth image of an RGB-D frame, whose pixels follow the colour pixels (see :mod:`.codec`).
 
-    The depth camera sits at the colour camera's pose (as RGB-D data sets pose both with one pose)
-    with its own intrinsics; its pixels are never resampled onto the colour grid."""
+    The depth camera sits at the colour camera's pose times ``T_cam_depth`` (at the same pose when
+    unset, as registered RGB-D cameras and most data sets have it) with its own intrinsics; its pixels
+    are never resampled onto the colour grid."""
 
     encoding: str = Field(DEPTH_ENCODING, description="Pixel layout: 16UC1 (row-major, H×W uint16 millimetres, little-endian, 0 = no reading).")
     width: int = Field(gt=0, description="Depth image width, pixels.")
     height: int = Field(gt=0, description="Depth image height, pixels.")
     intrinsics: PinholeIntrinsics = Field(description="Depth camera intrinsics (OpenCV pixel-centre convention).")
+    T_cam_depth: Matrix | None = Field(None, description="4×4 pose of the depth camera in the colour camera's frame, metres, OpenGL axes; None: the same pose.")
+
+    @field_validator("T_cam_depth")
+    @classmethod
+    def _offset(cls, value: Matrix | None) -> Matrix | None:
+        return None if value is None else _check_rigid(value, "T_cam_depth")
 
     @model_validator(mode="after")
     def _valid(self) -> DepthHeader:
@@ -226,7 +242,16 @@ class DepthRequest(_Wire):
     """The depth term of an update on an RGB-D frame (:mod:`locnerf.filter.depth_measurement`); every shard carries the same."""
 
     image: bytes = Field(description="The observed depth image: H×W uint16 millimetres, little-endian, 0 = no reading (H, W of `intrinsics`).")
-    intrinsics: PinholeIntrinsics = Field(description="The depth camera (at the particle pose).")
+    intrinsics: PinholeIntrinsics = Field(description="The depth camera.")
+    T_cam_depth: Matrix | None = Field(
+        None, description="4×4 pose of the depth camera in the particle (colour) camera's frame, metres, OpenGL axes; None: at the particle pose."
+    )
+
+    @field_validator("T_cam_depth")
+    @classmethod
+    def _offset(cls, value: Matrix | None) -> Matrix | None:
+        return None if value is None else _check_rigid(value, "T_cam_depth")
+
     measurement: MeasurementConfig = Field(description="The measurement settings (its `depth` must be set).")
     pixels: list[list[float]] = Field(
         description="(M, 2) depth pixels (u, v) rendered from every pose; re-projection instead draws its points from the reference render."

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from locnerf.data.colour_camera import metric_offset
 from locnerf.data.posed_images import PosedImages
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -27,10 +28,12 @@ class OdometryEvent:
 @dataclass(frozen=True)
 class DepthFrame:
     """The depth image taken with a camera frame (RGB-D cameras): ``millimetres`` (Hd, Wd) uint16
-    along the depth camera's optical axis, 0 = no reading, seen with ``intrinsics`` from the colour camera's pose."""
+    along the depth camera's optical axis, 0 = no reading, seen with ``intrinsics`` from the colour camera's pose
+    times ``T_cam_depth`` ((4, 4) float64, metres: the depth camera's pose in the colour camera's frame; None: the same pose)."""
 
     millimetres: np.ndarray
     intrinsics: PinholeIntrinsics
+    T_cam_depth: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,7 @@ def posed_depth_frame(frames: PosedImages, index: int) -> DepthFrame | None:
     """The depth image of frame ``index`` of a posed sequence as sent (uint16 millimetres), or None without depth."""
     if frames.depths is None or frames.depth_intrinsics is None:
         return None
-    return DepthFrame(depth_millimetres(frames.depths[index], frames.normalization.scale), frames.depth_intrinsics)
+    return DepthFrame(depth_millimetres(frames.depths[index], frames.normalization.scale), frames.depth_intrinsics, metric_offset(frames))
 
 
 def rgb8(image: torch.Tensor) -> np.ndarray:

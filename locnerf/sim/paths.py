@@ -21,6 +21,7 @@ from typing import Protocol
 import torch
 
 from locnerf.data import PosedImages, read_nerf_synthetic
+from locnerf.data.colour_camera import metric_offset, with_colour_camera
 from locnerf.data.detect import dataset_format, read_dataset
 from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.filter.depth_measurement import DepthObservation
@@ -183,7 +184,7 @@ class SequencePath:
     def depth_at(self, time: float) -> DepthObservation | None:
         if self.frames.depths is None or self.frames.depth_intrinsics is None:
             return None
-        return DepthObservation(self.frames.depths[self._frame_at(time)], self.frames.depth_intrinsics)
+        return DepthObservation(self.frames.depths[self._frame_at(time)], self.frames.depth_intrinsics, self.frames.T_cam_depth)
 
     def _frame_at(self, time: float) -> int:
         """The frame taken at path time ``time`` (a frame stamp)."""
@@ -195,19 +196,30 @@ class SequencePath:
 
 
 def read_sequence_path(
-    folder: str | Path, split: str, downscale: int | None, speed: float, odom_rate: float, background: str = "white", frame_rate: float | None = None
+    folder: str | Path,
+    split: str,
+    downscale: int | None,
+    speed: float,
+    odom_rate: float,
+    background: str = "white",
+    frame_rate: float | None = None,
+    T_depth_colour: torch.Tensor | None = None,
 ) -> SequencePath:
     """A data-set folder's ``split`` (any format of :func:`locnerf.data.read_dataset`) as a
     :class:`SequencePath`, poses (and depth images, where the data set has them) in the data set's metric frame.
 
     ``downscale`` None is the reader's default; ``background`` is the colour NeRF-synthetic RGBA
     frames are composited on (other formats have none); ``frame_rate`` replays the frames at the
-    capture's own rate instead of ``speed``.
+    capture's own rate instead of ``speed``; ``T_depth_colour`` (4, 4, map units), the colour camera
+    the map was built for (:mod:`locnerf.data.colour_camera`), moves the poses onto it.
     """
     if dataset_format(folder) == "nerf_synthetic":
         frames = read_nerf_synthetic(folder, split=split, background=background, downscale=downscale or 1)
     else:
         frames = read_dataset(folder, split=split, downscale=downscale)
+    if T_depth_colour is not None:
+        frames = with_colour_camera(frames, T_depth_colour)
     depths = frames.depths / frames.normalization.scale if frames.depths is not None else None
-    metric = dataclasses.replace(frames, T_world_cam=frames.normalization.map_to_metric(frames.T_world_cam.double()), depths=depths)
+    T_world_cam = frames.normalization.map_to_metric(frames.T_world_cam.double())
+    metric = dataclasses.replace(frames, T_world_cam=T_world_cam, depths=depths, T_cam_depth=metric_offset(frames))
     return SequencePath(metric, speed, odom_rate, frame_rate)

@@ -56,7 +56,7 @@ def scenario_events(segments: Iterable[TrackingScenario], image_generator: torch
 def _depth_frame(segment: TrackingScenario, tick: int) -> DepthFrame | None:
     """The depth image taken with the image at ``tick`` (metres on the path) as sent, or None without a depth camera."""
     depth = segment.depth(tick)
-    return None if depth is None else DepthFrame(depth_millimetres(depth.depth), depth.intrinsics)
+    return None if depth is None else DepthFrame(depth_millimetres(depth.depth), depth.intrinsics, depth.T_cam_depth)
 
 
 def simulated_events(path: CameraPath, config: ScenarioConfig, distinct_frames: int = 0) -> Iterator[SensorEvent]:

@@ -26,6 +26,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
+from locnerf.data.colour_camera import METADATA_KEY, calibrate_colour_camera, with_colour_camera
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
 from locnerf.field.grid import GridField, GridFieldConfig, grid_shape_for_box
@@ -116,6 +117,11 @@ class BuildConfig(BaseModel):
     depth_seed_alpha: float | None = Field(
         0.1, gt=0, lt=1, description="One-step opacity given at the start to the vertices nearest to back-projected depth points (None: no seeding)."
     )
+    calibrate_colour_camera: bool = Field(
+        True,
+        description="RGB-D data posed at the depth camera (7-Scenes): estimate the colour camera's offset from it (data/colour_camera.py),"
+        " train the colour rays from the colour camera and record the offset in the map (inside the time budget).",
+    )
     depth_seed_points: int = Field(2_000_000, gt=0, description="Most depth points used for seeding (an evenly spaced subset).")
     exposure_learning_rate: float | None = Field(
         None,
@@ -197,6 +203,29 @@ def _depth_rays(images: PosedImages, config: BuildConfig, info: MapInfo, device:
     return depth_training_rays(images, device)
 
 
+def _on_colour_camera(images: PosedImages, config: BuildConfig) -> tuple[PosedImages, dict]:
+    """``images`` moved onto their calibrated colour camera, and the map metadata recording it, where
+    ``config`` asks for it and the data are RGB-D posed at the depth camera; otherwise as they are, and no metadata."""
+    if not config.calibrate_colour_camera or images.depths is None or images.T_cam_depth is not None or images.normalization.ndc:
+        return images, {}
+    started = time.monotonic()
+    try:
+        calibration = calibrate_colour_camera(images)
+    except DatasetError as error:  # too few overlapping frames (a sparse subset): the colour rays stay at the depth camera
+        logger.warning("colour camera not calibrated, colour rays cast from the depth camera's poses: %s", error)
+        return images, {"colour_calibration": {"skipped": str(error)}}
+    metadata = {
+        METADATA_KEY: calibration.T_depth_colour.tolist(),
+        "colour_calibration": {
+            "inconsistency_before": round(calibration.inconsistency_before, 5),
+            "inconsistency_after": round(calibration.inconsistency_after, 5),
+            "points": calibration.points,
+            "seconds": round(time.monotonic() - started, 1),
+        },
+    }
+    return with_colour_camera(images, calibration.T_depth_colour), metadata
+
+
 def _optimizer(field: GridField, exposure: ImageExposure | None, config: BuildConfig) -> torch.optim.Optimizer:
     groups = [
         {"params": [field.grid], "lr": config.grid_learning_rate, "initial_lr": config.grid_learning_rate},
@@ -237,10 +266,12 @@ def build_map(images: PosedImages, config: BuildConfig, device: torch.device | s
 
 def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, progress: bool) -> GridMap:
     """:func:`build_map`'s training loop."""
+    start = time.monotonic()
     config = config_for(images, config)
     generator = torch.Generator(device=device).manual_seed(config.seed)
     torch.manual_seed(config.seed)
-    info = MapInfo(images.normalization, images.intrinsics, images.T_world_cam.double().clone(), {"source": images.source})
+    images, calibration = _on_colour_camera(images, config)
+    info = MapInfo(images.normalization, images.intrinsics, images.T_world_cam.double().clone(), {"source": images.source, **calibration})
     origins, directions, colours = training_rays(images, device)
     field_origins, field_directions = info.field_rays(origins, directions)
     background = (1.0, 1.0, 1.0) if images.white_background else None
@@ -259,7 +290,6 @@ def _train_map(images: PosedImages, config: BuildConfig, device: torch.device, p
     exposure = ImageExposure(len(images)).to(device) if config.exposure_learning_rate is not None else None
     pixels_per_image = images.intrinsics.height * images.intrinsics.width
     optimizer = _optimizer(field, exposure, config)
-    start = time.monotonic()
     budget = config.minutes * 60.0 if config.minutes is not None else None
     bar = tqdm(total=config.steps, disable=not progress, desc="build", unit="step")
     smoothed_mse = None

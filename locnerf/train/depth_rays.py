@@ -1,7 +1,7 @@
 """Depth supervision from RGB-D images: the depth camera's rays with a valid reading, and the loss on them.
 
-Each valid depth pixel is a ray of the depth camera (its own intrinsics, posed at ``T_world_cam``;
-depth images are never resampled onto the colour images). Ray directions have camera z = -1
+Each valid depth pixel is a ray of the depth camera (its own intrinsics, posed at
+``PosedImages.depth_poses()``; depth images are never resampled onto the colour images). Ray directions have camera z = -1
 (:mod:`locnerf.render.rays`), so the observed ray parameter of a pixel is its depth reading.
 """
 
@@ -24,7 +24,7 @@ def depth_training_rays(images: PosedImages, device: torch.device) -> tuple[torc
         raise DatasetError(f"{images.source}: no depth images to supervise with")
     pixels = pixel_grid(images.depth_intrinsics)
     origins, directions, depths = [], [], []
-    for pose, depth in zip(images.T_world_cam.float(), images.depths.float()):
+    for pose, depth in zip(images.depth_poses().float(), images.depths.float()):
         flat = depth.reshape(-1)
         valid = flat > 0
         ray_origins, ray_directions = rays_from_poses_and_pixels(pose[None], pixels[valid], images.depth_intrinsics)

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from locnerf.field.protocol import RadianceMap, surface_renderer
-from locnerf.filter.depth_measurement import rendered_depth_log_likelihoods, warped_depth_log_likelihoods
+from locnerf.filter.depth_measurement import DepthObservation, rendered_depth_log_likelihoods, warped_depth_log_likelihoods
 from locnerf.filter.measurement import particle_log_likelihoods
 from locnerf.filter.warp import WarpReference, render_reference, warp_log_likelihoods
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
@@ -108,9 +108,16 @@ class NerfWorker:
             raise RequestError(str(error)) from None
         depth = request.depth
         depth_pixels = depth.measurement.depth.pixels if depth is not None and depth.measurement.depth is not None else 0
-        depth_camera = depth.intrinsics if depth is not None else None
+        depth_camera, T_cam_depth = None, None
+        if depth is not None:
+            depth_camera, T_cam_depth = depth.intrinsics, self._depth_observation(depth).T_cam_depth
         generator = torch.Generator().manual_seed(warp.seed)
-        return render_reference(self.render_surface, reference_pose, request.intrinsics, warp.measurement, generator, depth_pixels, depth_camera)
+        return render_reference(self.render_surface, reference_pose, request.intrinsics, warp.measurement, generator, depth_pixels, depth_camera, T_cam_depth)
+
+    def _depth_observation(self, depth: DepthRequest) -> DepthObservation:
+        """The request's depth image and depth camera in map units, on the map's device."""
+        depth_mm = np.frombuffer(depth.image, dtype="<u2").reshape(depth.intrinsics.height, depth.intrinsics.width)
+        return depth_observation(depth_mm, depth.intrinsics, self.map.normalization.scale, self.map.device, depth.T_cam_depth)
 
     def _depth(self, depth: DepthRequest, poses: torch.Tensor, reference: WarpReference | None) -> torch.Tensor:
         """The depth term (N,) of an RGB-D frame for poses (N, 4, 4): the reference's depth points
@@ -121,10 +128,9 @@ class NerfWorker:
                 logger.warning("the map cannot place surfaces (an NDC or MLP map): the depth term of RGB-D requests is left out")
                 self._warned_depth = True
             return torch.zeros(poses.shape[0], dtype=torch.float32, device=poses.device)
-        depth_mm = np.frombuffer(depth.image, dtype="<u2").reshape(depth.intrinsics.height, depth.intrinsics.width)
         config = depth.measurement.depth
         try:
-            observation = depth_observation(depth_mm, depth.intrinsics, self.map.normalization.scale, self.map.device)
+            observation = self._depth_observation(depth)
             if reference is not None:
                 return warped_depth_log_likelihoods(poses, reference.depth_points, observation, config)
             pixels = torch.tensor(depth.pixels, dtype=torch.float32).reshape(-1, 2).to(self.map.device)

@@ -15,6 +15,7 @@ from typing import Literal
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from locnerf.data.colour_camera import colour_camera_matrix, with_colour_camera
 from locnerf.data.detect import read_dataset
 from locnerf.data.euroc import read_euroc
 from locnerf.errors import ConfigError
@@ -136,6 +137,8 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
         raise ConfigError("source = 'replay' needs replay.path: the data-set folder to replay")
     replay = config.replay
     sequence = read_dataset(replay.path, split=replay.split, downscale=replay.downscale, skip_missing=replay.skip_missing)
+    if replay.T_depth_colour is not None:
+        sequence = with_colour_camera(sequence, colour_camera_matrix(replay.T_depth_colour))
     return replay_events(sequence, config.replay, generator)
 
 

@@ -13,6 +13,7 @@ from collections.abc import Iterator
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from locnerf.data.colour_camera import ColourCameraSetting
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
 from locnerf.geometry.se3 import interpolate_pose
@@ -31,6 +32,7 @@ class ReplaySourceConfig(BaseModel):
     skip_missing: bool = Field(False, description="NeRF-synthetic: leave out frames whose image file is absent.")
     frame_rate: float = Field(5.0, gt=0, description="Frames per second of the replay.")
     vio: VioConfig = Field(default_factory=VioConfig, description="Odometry (and ground-truth) rate, drift and noise.")
+    T_depth_colour: ColourCameraSetting
 
 
 def replay_events(sequence: PosedImages, config: ReplaySourceConfig, generator: torch.Generator) -> Iterator[SensorEvent]:

@@ -18,6 +18,7 @@ from collections.abc import Iterator
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from locnerf.data.colour_camera import ColourCameraSetting, colour_camera_matrix
 from locnerf.sim.events import SensorEvent
 from locnerf.sim.paths import CameraPath, WorldPath, read_sequence_path
 from locnerf.sim.scenario import ScenarioConfig
@@ -45,13 +46,17 @@ class ScenarioSourceConfig(BaseModel):
     image_rate: float = Field(5.0, gt=0, description="Images per second (rounded onto the odometry grid or the frames).")
     vio: VioConfig = Field(default_factory=VioConfig, description="Odometry rate, drift and noise (the offline path's model).")
     kidnap_at: float | None = Field(None, gt=0, description="Seconds: the camera jumps about half a loop ahead, unseen by the odometry.")
+    T_depth_colour: ColourCameraSetting
 
 
 def camera_path(config: ScenarioSourceConfig) -> CameraPath:
     """The figure-eight of the default procedural world, or the data-set folder's frames in metres."""
     if config.sequence == WORLD:
         return WorldPath(ProceduralWorld.default(), FigureEightTrajectory(), CameraConfig())
-    return read_sequence_path(config.sequence, config.split, config.downscale, config.speed, config.vio.rate, frame_rate=config.frame_rate)
+    colour_camera = None if config.T_depth_colour is None else colour_camera_matrix(config.T_depth_colour)
+    return read_sequence_path(
+        config.sequence, config.split, config.downscale, config.speed, config.vio.rate, frame_rate=config.frame_rate, T_depth_colour=colour_camera
+    )
 
 
 def scenario_events(config: ScenarioSourceConfig, seed: int) -> Iterator[SensorEvent]:

@@ -20,7 +20,10 @@ def event_message(robot_id: str, event: SensorEvent, camera_frame: str = "camera
     if isinstance(event, ImageEvent):
         height, width = event.pixels.shape[:2]
         depth = event.depth
-        depth_header = None if depth is None else DepthHeader(width=depth.millimetres.shape[1], height=depth.millimetres.shape[0], intrinsics=depth.intrinsics)
+        depth_header = None
+        if depth is not None:
+            offset = None if depth.T_cam_depth is None else depth.T_cam_depth.tolist()
+            depth_header = DepthHeader(width=depth.millimetres.shape[1], height=depth.millimetres.shape[0], intrinsics=depth.intrinsics, T_cam_depth=offset)
         header = ImageHeader(
             stamp=event.stamp, frame_id=camera_frame, encoding="rgb8", width=width, height=height, intrinsics=event.intrinsics, depth=depth_header
         )

@@ -20,7 +20,7 @@ from locnerf.filter.depth_measurement import (
 )
 from locnerf.filter.measurement import WarpConfig
 from locnerf.filter.warp import render_reference
-from locnerf.geometry import pose_inverse
+from locnerf.geometry import make_pose, pose_inverse, so3_exp
 from locnerf.render import PinholeIntrinsics
 from locnerf.sim.world import ProceduralWorld
 from tests.filter.world_poses import poses_around, true_pose
@@ -189,6 +189,31 @@ def test_the_true_pose_is_the_most_likely_in_the_procedural_world(world: Procedu
     assert reference.depth_points.shape == (config.pixels, 4)
     warped = warped_depth_log_likelihoods(poses, reference.depth_points, observation, config)
     assert int(warped.argmax()) == 0
+
+
+def test_a_depth_camera_offset_from_the_colour_camera_is_where_the_depth_is_seen_from(world: ProceduralWorld, generator: torch.Generator) -> None:
+    """With ``T_cam_depth`` set, a particle's depth term is the offset-free term of the particle times the offset
+    (rendered and re-projected alike), and the true colour pose, not the depth camera's, scores highest."""
+    offset = make_pose(so3_exp(torch.tensor([0.02, -0.01, 0.015], dtype=torch.float64)), torch.tensor([-0.03, 0.016, 0.004], dtype=torch.float64))
+    truth = true_pose(world)
+    seen = _depth_image(world, truth @ offset, FINE_DEPTH)
+    observation = DepthObservation(seen.depth, FINE_DEPTH, offset)
+    config = DepthConfig(pixels=128)
+    poses = torch.cat((truth[None], poses_around(truth, 30, math.radians(1.0), 0.03, generator)))
+    pixels = sample_depth_pixels(observation, config, generator)
+    rendered = rendered_depth_log_likelihoods(poses, observation, pixels, world.render_surface, config)
+    torch.testing.assert_close(rendered, rendered_depth_log_likelihoods(poses @ offset, seen, pixels, world.render_surface, config))
+    assert int(rendered.argmax()) == 0
+    measurement = preset("llff").measurement.model_copy(update={"warp": WarpConfig(max_spread=0.05), "depth": config})
+    reference = render_reference(world.render_surface, truth, COLOUR, measurement, generator, config.pixels, FINE_DEPTH, offset)
+    warped = warped_depth_log_likelihoods(poses, reference.depth_points, observation, config)
+    torch.testing.assert_close(warped, warped_depth_log_likelihoods(poses @ offset, reference.depth_points, seen, config))
+    assert int(warped.argmax()) == 0
+    scaled = observation.scaled(2.0)
+    torch.testing.assert_close(scaled.T_cam_depth[:3, 3], 2.0 * offset[:3, 3])
+    torch.testing.assert_close(scaled.T_cam_depth[:3, :3], offset[:3, :3])
+    with pytest.raises(ValueError, match="T_cam_depth of shape"):
+        DepthObservation(seen.depth, FINE_DEPTH, torch.eye(3))
 
 
 def _localizer(depth: DepthConfig | None, warp: WarpConfig | None = None, particles: int = 50) -> Localizer:

@@ -1,0 +1,329 @@
+"""The colour camera of an RGB-D sequence whose colour and depth images are not registered (7-Scenes).
+
+7-Scenes poses the Kinect's *depth* camera; its colour camera sits a few centimetres away (redkitchen:
+about 3 cm along x, 1.6 cm along y and 0.8° about x, calibrated below). Rays of colour pixels cast from the
+depth camera's pose paint every surface from a slightly wrong place, and by a different amount in
+every view, so a map built that way blurs and its likelihood peaks centimetres off.
+
+:func:`calibrate_colour_camera` estimates ``T_depth_colour``, the colour camera's pose in the depth
+camera's frame (OpenGL axes, map units), from the sequence itself: depth pixels of reference frames
+become world points (depth camera pose, depth intrinsics); each point is projected into the colour
+images of its reference frame and of neighbouring frames (``T_world_depth · T_depth_colour``, colour
+intrinsics) where the depth image of that frame sees it (a depth test against that frame's reading);
+the offset that makes the grey values of every point agree across its views is the colour camera:
+Adam on a rotation vector and a translation, minimising a robust (Cauchy) loss of each view's grey
+value against the point's mean, on slightly blurred images, after each view's exposure gain. The colour intrinsics stay as
+given: their focal length trades against the offset along the optical axis.
+
+:func:`with_colour_camera` moves a sequence's poses onto the colour camera and keeps the depth
+camera as ``PosedImages.T_cam_depth``. A map built from such a sequence records ``T_depth_colour`` in
+its metadata (:data:`METADATA_KEY`), and whatever reads a data set to use with that map applies
+the same offset (:func:`colour_camera_of`): its ground truth is then the colour camera's.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, replace
+from typing import Annotated
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+from pydantic import AfterValidator, Field
+
+from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError
+from locnerf.geometry.se3 import make_pose, pose_inverse
+from locnerf.geometry.so3 import so3_exp
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.rays import camera_directions_from_pixels
+
+logger = logging.getLogger(__name__)
+
+METADATA_KEY = "T_depth_colour"
+"""Map metadata key of the colour camera's pose in the depth camera's frame (4×4 nested list, map units)."""
+RIGID_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    """How :func:`calibrate_colour_camera` samples the sequence and optimises.
+
+    Attributes:
+        references: reference frames, evenly spread over the sequence.
+        points: depth points drawn per reference frame.
+        neighbours: frame offsets (in sequence order) whose colour images also see a reference's points.
+        iterations: Adam steps.
+        learning_rate: Adam step size (radians and map units).
+        blur: Gaussian blur of the grey images, pixels (standard deviation).
+        depth_tolerance: a point is visible in a frame where its depth is within this fraction of the frame's reading.
+        min_views: views a point needs to count.
+        seed: seed of the point draws.
+    """
+
+    references: int = 60
+    points: int = 1500
+    neighbours: tuple[int, ...] = (-24, -12, 12, 24)
+    iterations: int = 150
+    learning_rate: float = 3e-3
+    depth_tolerance: float = 0.04
+    blur: float = 1.0
+    min_views: int = 3
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class ColourCalibration:
+    """The result of :func:`calibrate_colour_camera`.
+
+    Attributes:
+        T_depth_colour: (4, 4) float64, the colour camera's pose in the depth camera's frame (OpenGL axes, map units).
+        inconsistency_before: the mean robust loss of the points' grey values against their means
+            (:func:`_inconsistency`), with no offset.
+        inconsistency_after: the same with ``T_depth_colour``.
+        points: views of points that counted (each point seen in at least ``min_views`` views).
+    """
+
+    T_depth_colour: torch.Tensor
+    inconsistency_before: float
+    inconsistency_after: float
+    points: int
+
+
+def _grey(images: torch.Tensor, blur: float) -> torch.Tensor:
+    """(K, H, W) luma of (K, H, W, 3) RGB in [0, 1] (ITU-R BT.601 weights), Gaussian-blurred by ``blur`` pixels
+    (bilinear reads of a band-limited image vary smoothly with the offset)."""
+    grey = images.double() @ torch.tensor([0.299, 0.587, 0.114], dtype=torch.float64)
+    if blur > 0:
+        grey = torch.from_numpy(np.stack([cv2.GaussianBlur(frame, (0, 0), blur) for frame in grey.numpy()]))
+    return grey
+
+
+def _reference_points(images: PosedImages, config: CalibrationConfig) -> list[tuple[int, torch.Tensor]]:
+    """(frame, (P, 3) float64 world points) of randomly drawn valid depth pixels of evenly spread reference frames."""
+    assert images.depths is not None and images.depth_intrinsics is not None
+    generator = torch.Generator().manual_seed(config.seed)
+    count = len(images)
+    frames = torch.linspace(0, count - 1, min(config.references, count)).round().long().unique().tolist()
+    poses = images.T_world_cam.double()
+    references = []
+    for frame in frames:
+        depth = images.depths[frame].double()
+        rows, cols = torch.nonzero(depth > 0, as_tuple=True)
+        if len(rows) == 0:
+            continue
+        chosen = torch.randperm(len(rows), generator=generator)[: config.points]
+        rows, cols = rows[chosen], cols[chosen]
+        directions = camera_directions_from_pixels(torch.stack((cols, rows), dim=-1).double(), images.depth_intrinsics)
+        local = directions * depth[rows, cols][:, None]
+        references.append((frame, local @ poses[frame, :3, :3].T + poses[frame, :3, 3]))
+    return references
+
+
+def _project(points: torch.Tensor, T_cam_world: torch.Tensor, camera: PinholeIntrinsics) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Pixel (u, v) (P,) each and depth (P,) of world points (P, 3) in a camera (OpenGL axes: depth is -z)."""
+    local = points @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    depth = -local[:, 2]
+    safe = torch.where(depth > 1e-6, depth, torch.ones_like(depth))
+    return camera.cx + camera.fx * local[:, 0] / safe, camera.cy - camera.fy * local[:, 1] / safe, depth
+
+
+def _inside(u: torch.Tensor, v: torch.Tensor, camera: PinholeIntrinsics, border: float) -> torch.Tensor:
+    return (u >= border) & (u <= camera.width - 1 - border) & (v >= border) & (v <= camera.height - 1 - border)
+
+
+def _bilinear(image: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """(P,) values of ``image`` (H, W) at sub-pixel (u, v) (P,) each (pixel index = coordinate); differentiable in u, v."""
+    height, width = image.shape
+    grid = torch.stack((2.0 * u / (width - 1) - 1.0, 2.0 * v / (height - 1) - 1.0), dim=-1)
+    return F.grid_sample(image[None, None], grid[None, None], mode="bilinear", padding_mode="border", align_corners=True)[0, 0, 0]
+
+
+def _visible(images: PosedImages, frame: int, points: torch.Tensor, tolerance: float) -> torch.Tensor:
+    """(P,) bool: the depth image of ``frame`` reads the points' own depth (within ``tolerance`` of it)."""
+    assert images.depths is not None and images.depth_intrinsics is not None
+    camera = images.depth_intrinsics
+    u, v, depth = _project(points, pose_inverse(images.T_world_cam[frame].double()), camera)
+    inside = _inside(u, v, camera, 0.0) & (depth > 0)
+    reading = images.depths[frame].double()[v.round().long().clamp(0, camera.height - 1), u.round().long().clamp(0, camera.width - 1)]
+    return inside & (reading > 0) & ((reading - depth).abs() <= tolerance * depth)
+
+
+class _Views:
+    """For every reference's points, the frames that see them (by the depth test, independent of the offset)."""
+
+    def __init__(self, images: PosedImages, references: list[tuple[int, torch.Tensor]], config: CalibrationConfig) -> None:
+        self.entries: list[tuple[torch.Tensor, list[int], torch.Tensor]] = []
+        for frame, points in references:
+            frames = [frame + offset for offset in (0, *config.neighbours) if 0 <= frame + offset < len(images)]
+            visible = torch.stack([_visible(images, j, points, config.depth_tolerance) for j in frames])
+            keep = visible.sum(0) >= config.min_views
+            if keep.any():
+                self.entries.append((points[keep], frames, visible[:, keep]))
+
+
+def _residuals(views: _Views, grey: torch.Tensor, T_cam_world: torch.Tensor, offset: torch.Tensor, camera: PinholeIntrinsics, min_views: int) -> torch.Tensor:
+    """(S,) differences between each view's grey value of a point and the point's mean over its views, for
+    every view of every point seen in at least ``min_views`` views.
+
+    ``grey`` (K, H, W); ``T_cam_world`` (K, 4, 4): each frame's depth camera, world to camera; ``offset`` (4, 4): T_colour_depth.
+    """
+    residuals = []
+    for points, frames, visible in views.entries:
+        values, masks = [], []
+        for row, frame in enumerate(frames):
+            u, v, depth = _project(points, offset @ T_cam_world[frame], camera)
+            masks.append(visible[row] & _inside(u.detach(), v.detach(), camera, 1.0) & (depth.detach() > 0))
+            values.append(_bilinear(grey[frame], u, v))
+        value, mask = torch.stack(values), torch.stack(masks)
+        mask = mask & (mask.sum(0) >= min_views)
+        views_per_point = mask.sum(0).clamp(min=1)
+        mean = (value * mask).sum(0) / views_per_point
+        with torch.no_grad():  # each view's exposure: the median ratio of its values to the points' means
+            ratio = torch.where(mask, value / mean.clamp(min=1e-3), torch.nan)
+            gain = torch.nanmedian(ratio, dim=1).values.nan_to_num(1.0).clamp(0.5, 2.0)
+        value = value / gain[:, None]
+        mean = (value * mask).sum(0) / views_per_point
+        residuals.append((value - mean)[mask])
+    return torch.cat(residuals) if residuals else grey.new_zeros(0)
+
+
+def _inconsistency(residuals: torch.Tensor, scale: float) -> torch.Tensor:
+    """Mean Cauchy loss ``log(1 + (r / scale)²)`` of the residuals: occlusions the depth test missed,
+    reflections and sensor noise count little, so they cannot pull the offset along a direction the
+    images barely tell apart (a turn about a point at the scene's depth against a sideways shift)."""
+    return torch.log1p((residuals / scale) ** 2).mean()
+
+
+def calibrate_colour_camera(images: PosedImages, config: CalibrationConfig | None = None) -> ColourCalibration:
+    """Estimate the colour camera's pose in the depth camera's frame from a posed RGB-D sequence.
+
+    Args:
+        images: frames in capture order, ``T_world_cam`` the depth camera's poses, with depth images.
+        config: sampling and optimisation settings.
+    Returns:
+        the calibration (``T_depth_colour`` (4, 4) float64 and the photometric inconsistency before and after).
+    Raises:
+        DatasetError: without depth images, or when no depth point is seen in enough views.
+    """
+    config = config or CalibrationConfig()
+    if images.depths is None or images.depth_intrinsics is None:
+        raise DatasetError(f"{images.source}: calibrating the colour camera needs depth images")
+    if images.T_cam_depth is not None:
+        raise DatasetError(f"{images.source}: the poses are already the colour camera's (T_cam_depth is set)")
+    views = _Views(images, _reference_points(images, config), config)
+    if not views.entries:
+        raise DatasetError(f"{images.source}: no depth point is seen in {config.min_views} frames; cannot calibrate the colour camera")
+    grey = _grey(images.images, config.blur)
+    T_cam_world = pose_inverse(images.T_world_cam.double())
+    rotation = torch.zeros(3, dtype=torch.float64, requires_grad=True)
+    translation = torch.zeros(3, dtype=torch.float64, requires_grad=True)
+    optimiser = torch.optim.Adam([rotation, translation], lr=config.learning_rate)
+    with torch.no_grad():
+        start = _residuals(views, grey, T_cam_world, torch.eye(4, dtype=torch.float64), images.intrinsics, config.min_views)
+        scale = max(float(1.4826 * start.abs().median()), 1e-6)  # the residuals' robust spread with no offset
+        before = _inconsistency(start, scale)
+    for _ in range(config.iterations):
+        T_depth_colour = make_pose(so3_exp(rotation), translation)
+        residuals = _residuals(views, grey, T_cam_world, pose_inverse(T_depth_colour), images.intrinsics, config.min_views)
+        loss = _inconsistency(residuals, scale)
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    with torch.no_grad():
+        T_depth_colour = make_pose(so3_exp(rotation), translation)
+        after = _inconsistency(_residuals(views, grey, T_cam_world, pose_inverse(T_depth_colour), images.intrinsics, config.min_views), scale)
+    counted = len(start)
+    angle = math.degrees(float(rotation.detach().norm()))
+    logger.info(
+        "colour camera in the depth camera's frame: translation %s map units, rotation %.2f deg; inconsistency %.4f -> %.4f over %d point views",
+        [round(x, 4) for x in translation.detach().tolist()],
+        angle,
+        float(before),
+        float(after),
+        counted,
+    )
+    return ColourCalibration(T_depth_colour.detach(), float(before), float(after), counted)
+
+
+def with_colour_camera(images: PosedImages, T_depth_colour: torch.Tensor) -> PosedImages:
+    """``images`` posed at their colour camera: ``T_world_cam · T_depth_colour``, the depth camera kept as ``T_cam_depth``.
+
+    Raises:
+        DatasetError: if the poses are already the colour camera's.
+    """
+    if images.T_cam_depth is not None:
+        raise DatasetError(f"{images.source}: the poses are already the colour camera's (T_cam_depth is set)")
+    offset = T_depth_colour.to(torch.float64)
+    return replace(images, T_world_cam=images.T_world_cam.double() @ offset, T_cam_depth=pose_inverse(offset))
+
+
+def colour_camera_of(metadata: dict) -> torch.Tensor | None:
+    """The map's ``T_depth_colour`` (4, 4) float64 from its metadata; None for a map of registered cameras.
+
+    Raises:
+        DatasetError: if the entry is not a rigid 4×4 transform.
+    """
+    value = metadata.get(METADATA_KEY)
+    return None if value is None else colour_camera_matrix(value)
+
+
+def colour_camera_matrix(value: object) -> torch.Tensor:
+    """``T_depth_colour`` as a (4, 4) float64 tensor from a 4×4 nested list.
+
+    Raises:
+        DatasetError: if it is not a rigid 4×4 transform (orthonormal rotation, determinant +1, last row 0 0 0 1).
+    """
+    try:
+        matrix = torch.tensor(value, dtype=torch.float64)
+    except (TypeError, ValueError) as error:
+        raise DatasetError(f"{METADATA_KEY}: expected a 4x4 list of numbers, got {value!r}") from error
+    if matrix.shape != (4, 4) or not torch.isfinite(matrix).all():
+        raise DatasetError(f"{METADATA_KEY}: expected a finite 4x4 matrix, got shape {tuple(matrix.shape)}")
+    rotation = matrix[:3, :3]
+    rigid = torch.allclose(rotation.T @ rotation, torch.eye(3, dtype=torch.float64), atol=RIGID_TOLERANCE) and float(torch.linalg.det(rotation)) > 0
+    if not rigid or not torch.allclose(matrix[3], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)):
+        raise DatasetError(f"{METADATA_KEY}: expected a rigid transform (orthonormal rotation, last row 0 0 0 1), got {value}")
+    return matrix
+
+
+def _checked_matrix(value: list[list[float]]) -> list[list[float]]:
+    colour_camera_matrix(value)
+    return value
+
+
+ColourCameraSetting = Annotated[
+    list[list[float]] | None,
+    AfterValidator(lambda value: None if value is None else _checked_matrix(value)),
+    Field(
+        None,
+        description="T_depth_colour of the map (its metadata, `locnerf map info`): the colour camera's pose in the depth camera's frame,"
+        " map units, for data posed at the depth camera (7-Scenes); the replayed poses and depth follow it. None: as the data set poses them.",
+    ),
+]
+"""A source setting naming the colour camera a map was built for (services' replay and scenario sources)."""
+
+
+def on_map_camera(images: PosedImages, radiance_map: object) -> PosedImages:
+    """``images`` on the colour camera ``radiance_map`` was built for: moved by the ``T_depth_colour``
+    its metadata records (maps built from RGB-D data posed at the depth camera), else as they are.
+
+    Raises:
+        DatasetError: if the map's entry is not a rigid 4×4 transform.
+    """
+    T_depth_colour = colour_camera_of(getattr(radiance_map, "metadata", None) or {})
+    if T_depth_colour is None or images.T_cam_depth is not None:
+        return images
+    return with_colour_camera(images, T_depth_colour)
+
+
+def metric_offset(frames: PosedImages) -> torch.Tensor | None:
+    """``frames.T_cam_depth`` with its translation in metres (None when the depth camera sits at the colour camera's pose)."""
+    if frames.T_cam_depth is None:
+        return None
+    offset = frames.T_cam_depth.double().clone()
+    offset[:3, 3] /= frames.normalization.scale
+    return offset
