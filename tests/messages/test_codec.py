@@ -191,3 +191,16 @@ def test_rgbd_frames_with_missing_depth_bytes_or_a_bad_depth_header_are_refused(
         codec.encode_image(_header(), pixels, depth)
     with pytest.raises(ValueError, match="depth pixels: expected uint16 of shape"):
         codec.encode_image(_rgbd_header(), pixels, depth.astype(np.float32))
+
+
+def test_a_depth_camera_offset_travels_with_the_depth_header_and_must_be_rigid():
+    offset = [[1.0, 0.0, 0.0, 0.027], [0.0, 1.0, 0.0, 0.015], [0.0, 0.0, 1.0, 0.005], [0.0, 0.0, 0.0, 1.0]]
+    header = _header().model_copy(update={"depth": schemas.DepthHeader(width=2, height=2, intrinsics=DEPTH_INTRINSICS, T_cam_depth=offset)})
+    frame = codec.encode_image(header, np.zeros((3, 4, 3), np.uint8), np.ones((2, 2), np.uint16))
+    assert codec.decode_rgbd(frame)[0].depth.T_cam_depth == offset
+    sheared = [row[:] for row in offset]
+    sheared[0][1] = 0.2
+    with pytest.raises(ValueError, match="T_cam_depth: expected a rigid transform"):
+        schemas.DepthHeader(width=2, height=2, intrinsics=DEPTH_INTRINSICS, T_cam_depth=sheared)
+    with pytest.raises(ValueError, match="T_cam_depth: expected a 4×4 matrix"):
+        schemas.DepthHeader(width=2, height=2, intrinsics=DEPTH_INTRINSICS, T_cam_depth=offset[:3])

@@ -17,7 +17,8 @@ from locnerf.field.protocol import MapNormalization
 from locnerf.filter.depth_measurement import DepthConfig, render_depth_image, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels
 from locnerf.filter.warp import render_reference, warp_log_likelihoods
-from locnerf.geometry.se3 import pose_inverse, se3_exp
+from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
+from locnerf.geometry.so3 import so3_exp
 from locnerf.messages.codec import decode, decode_image, decode_rgbd, encode
 from locnerf.messages.schemas import DepthRequest, Odometry, UpdateRequest, WarpRequest
 from locnerf.render.camera import PinholeIntrinsics
@@ -284,19 +285,28 @@ def test_worker_warps_as_the_in_process_localizer_does(world, generator):
         WarpRequest.model_validate(request.warp.model_dump() | {"measurement": {}})
 
 
-def test_worker_adds_the_depth_term_of_an_rgbd_request_as_the_localizer_does(world, generator):
+DEPTH_OFFSET = make_pose(so3_exp(torch.tensor([0.17, 0.0, 0.05], dtype=torch.float64)), torch.tensor([0.03, 0.01, -0.02], dtype=torch.float64)).tolist()
+"""A depth camera turned 10 degrees and a few centimetres away from the colour camera (an exaggerated offset)."""
+
+
+@pytest.mark.parametrize("offset", [None, DEPTH_OFFSET], ids=["at the colour camera", "offset"])
+def test_worker_adds_the_depth_term_of_an_rgbd_request_as_the_localizer_does(world, generator, offset):
     """The depth term joins the colour term: rendered from every pose for the request's depth pixels, or
-    re-projected from the reference render's depth points (the same seed, so the same on every shard);
-    the request decodes to itself; a map without surfaces leaves the term out; bad depth parts are refused."""
+    re-projected from the reference render's depth points (the same seed, so the same on every shard),
+    with the depth camera where the request's T_cam_depth puts it; the request decodes to itself; a map
+    without surfaces leaves the term out; bad depth parts are refused."""
     camera = PinholeIntrinsics.from_fov(40, 30, math.radians(60))
     depth_config = DepthConfig(pixels=20)
     request, poses, image, measurement = _warp_request(world, generator)
     truth = torch.tensor(request.warp.reference_pose, dtype=torch.float64)
-    millimetres = depth_millimetres(render_depth_image(world.render_surface, truth, camera).depth)
-    observation = depth_observation(millimetres, camera, scale=1.0)
+    depth_pose = truth if offset is None else truth @ torch.tensor(offset, dtype=torch.float64)
+    millimetres = depth_millimetres(render_depth_image(world.render_surface, depth_pose, camera).depth)
+    observation = depth_observation(millimetres, camera, scale=1.0, T_cam_depth=offset)
     measurement = measurement.model_copy(update={"depth": depth_config})
     depth_pixels = sample_depth_pixels(observation, depth_config, generator)
-    depth_part = DepthRequest(image=millimetres.astype("<u2").tobytes(), intrinsics=camera, measurement=measurement, pixels=depth_pixels.tolist())
+    depth_part = DepthRequest(
+        image=millimetres.astype("<u2").tobytes(), intrinsics=camera, T_cam_depth=offset, measurement=measurement, pixels=depth_pixels.tolist()
+    )
     rendered = request.model_copy(update={"warp": None, "depth": depth_part})
     warped = request.model_copy(update={"warp": request.warp.model_copy(update={"measurement": measurement}), "depth": depth_part})
     for message in (rendered, warped):
@@ -307,7 +317,14 @@ def test_worker_adds_the_depth_term_of_an_rgbd_request_as_the_localizer_does(wor
     torch.testing.assert_close(torch.tensor(NerfWorker(world, "w").handle(rendered).log_likelihoods, dtype=torch.float64), expected)
 
     reference = render_reference(
-        world.render_surface, truth, world.default_intrinsics, measurement, torch.Generator().manual_seed(7), depth_config.pixels, camera
+        world.render_surface,
+        truth,
+        world.default_intrinsics,
+        measurement,
+        torch.Generator().manual_seed(7),
+        depth_config.pixels,
+        camera,
+        observation.T_cam_depth,
     )
     assert reference.depth_points.shape == (depth_config.pixels, 4)
     expected = warp_log_likelihoods(poses, reference, image, world.default_intrinsics).double()

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 import torch
 
+from locnerf.geometry import make_pose, pose_inverse, so3_exp
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from locnerf.sim.paths import WorldPath
 from locnerf.sim.scenario import ScenarioConfig, build_scenario
@@ -70,3 +72,22 @@ def test_an_rgbd_sequence_is_served_with_its_depth_images_in_millimetres(shared_
         assert image.depth is not None and image.depth.millimetres.dtype == np.uint16 and image.pixels.shape == (60, 80, 3)
         assert image.depth.intrinsics.width == image.depth.millimetres.shape[1] == 80
         assert np.array_equal(image.depth.millimetres, expected)
+
+
+def test_a_sequence_on_its_maps_colour_camera_sends_the_depth_cameras_offset(shared_data):
+    """With the map's T_depth_colour the served truth is the colour camera's (the depth camera's pose times it)
+    and every depth frame carries the depth camera's pose in the colour camera's frame, in metres."""
+    kitchen = shared_data / "7scenes_redkitchen"
+    offset = make_pose(so3_exp(torch.tensor([-0.014, 0.002, 0.003], dtype=torch.float64)), torch.tensor([0.027, 0.015, 0.005], dtype=torch.float64))
+    settings = {"sequence": str(kitchen), "split": "test", "downscale": 8, "frame_rate": 30.0, "duration": 0.2, "image_rate": 5.0}
+    plain = list(sensor_events(IngestConfig(source="scenario", scenario=ScenarioSourceConfig(**settings))))
+    moved = list(sensor_events(IngestConfig(source="scenario", scenario=ScenarioSourceConfig(**settings, T_depth_colour=offset.tolist()))))
+    truths = [(a.T_world_cam, b.T_world_cam) for a, b in zip(plain, moved) if isinstance(a, GroundTruthEvent)]
+    assert truths
+    for depth_pose, colour_pose in truths:
+        torch.testing.assert_close(colour_pose, depth_pose @ offset)
+    images = [e for e in moved if isinstance(e, ImageEvent)]
+    assert images and all(e.depth.T_cam_depth is not None for e in images)
+    torch.testing.assert_close(images[0].depth.T_cam_depth, pose_inverse(offset))
+    with pytest.raises(ValueError, match="T_depth_colour: expected a rigid transform"):
+        ScenarioSourceConfig(**settings, T_depth_colour=(2.0 * offset).tolist())
