@@ -12,7 +12,7 @@ import torch
 from cli.eval_tracking_live import run_live
 from cli.flags import NO_DEPTH_HELP, from_flags, without_depth
 from locnerf.config import load_config, preset
-from locnerf.data.colour_camera import colour_camera_of
+from locnerf.data.colour_camera import map_colour_camera
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import (
@@ -105,7 +105,7 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
     folder = Path(args.sequence)
     if not folder.is_dir():
         raise FileNotFoundError(f"--sequence {folder}: no such folder (expected 'world' or a data-set folder)")
-    colour_camera = colour_camera_of(getattr(radiance_map, "metadata", None) or {})
+    colour_camera = map_colour_camera(radiance_map)
     return read_sequence_path(folder, args.split, args.downscale, args.speed, args.odom_rate, args.background, args.frame_rate, colour_camera)
 
 

@@ -21,7 +21,7 @@ from typing import Any
 import torch
 
 from cli.up import ServiceConfigs, start_services
-from locnerf.data.colour_camera import colour_camera_of
+from locnerf.data.colour_camera import map_colour_camera
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_summary
@@ -141,7 +141,7 @@ def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate:
     if args.workers < 1:
         raise LocnerfInputError(f"--workers {args.workers}: expected at least 1")
     radiance_map = open_map(args.map, torch.device("cpu"))
-    colour_camera = colour_camera_of(getattr(radiance_map, "metadata", None) or {})
+    colour_camera = map_colour_camera(radiance_map)
     events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
     observed = record_run(service_configs(args, image_rate, vio, events, colour_camera), args.logs, sensor_seconds)
     report = live_summary(observed, radiance_map.normalization, args.kidnap_at, criterion, series=args.json)

@@ -31,15 +31,16 @@ from typing import Annotated
 import cv2
 import numpy as np
 import torch
-import torch.nn.functional as F
 from pydantic import AfterValidator, Field
 
 from locnerf.data.posed_images import PosedImages
+from locnerf.data.seven_scenes import depth_points
 from locnerf.errors import DatasetError
+from locnerf.filter.warp import points_in_cameras, project_camera_points, sample_image
 from locnerf.geometry.se3 import make_pose, pose_inverse
 from locnerf.geometry.so3 import so3_exp
+from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.render.rays import camera_directions_from_pixels
 
 logger = logging.getLogger(__name__)
 
@@ -103,52 +104,36 @@ def _grey(images: torch.Tensor, blur: float) -> torch.Tensor:
 
 
 def _reference_points(images: PosedImages, config: CalibrationConfig) -> list[tuple[int, torch.Tensor]]:
-    """(frame, (P, 3) float64 world points) of randomly drawn valid depth pixels of evenly spread reference frames."""
+    """(frame, (P, 4) float64 homogeneous world points) of randomly drawn valid depth pixels of evenly spread reference frames."""
     assert images.depths is not None and images.depth_intrinsics is not None
     generator = torch.Generator().manual_seed(config.seed)
     count = len(images)
     frames = torch.linspace(0, count - 1, min(config.references, count)).round().long().unique().tolist()
-    poses = images.T_world_cam.double()
     references = []
     for frame in frames:
-        depth = images.depths[frame].double()
-        rows, cols = torch.nonzero(depth > 0, as_tuple=True)
-        if len(rows) == 0:
-            continue
-        chosen = torch.randperm(len(rows), generator=generator)[: config.points]
-        rows, cols = rows[chosen], cols[chosen]
-        directions = camera_directions_from_pixels(torch.stack((cols, rows), dim=-1).double(), images.depth_intrinsics)
-        local = directions * depth[rows, cols][:, None]
-        references.append((frame, local @ poses[frame, :3, :3].T + poses[frame, :3, 3]))
+        points = depth_points(images.depths[frame : frame + 1], images.T_world_cam[frame : frame + 1], images.depth_intrinsics)
+        if len(points):
+            chosen = points[torch.randperm(len(points), generator=generator)[: config.points]]
+            references.append((frame, torch.cat((chosen, torch.ones_like(chosen[:, :1])), dim=-1)))
     return references
 
 
-def _project(points: torch.Tensor, T_cam_world: torch.Tensor, camera: PinholeIntrinsics) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Pixel (u, v) (P,) each and depth (P,) of world points (P, 3) in a camera (OpenGL axes: depth is -z)."""
-    local = points @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-    depth = -local[:, 2]
-    safe = torch.where(depth > 1e-6, depth, torch.ones_like(depth))
-    return camera.cx + camera.fx * local[:, 0] / safe, camera.cy - camera.fy * local[:, 1] / safe, depth
-
-
-def _inside(u: torch.Tensor, v: torch.Tensor, camera: PinholeIntrinsics, border: float) -> torch.Tensor:
-    return (u >= border) & (u <= camera.width - 1 - border) & (v >= border) & (v <= camera.height - 1 - border)
-
-
-def _bilinear(image: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """(P,) values of ``image`` (H, W) at sub-pixel (u, v) (P,) each (pixel index = coordinate); differentiable in u, v."""
-    height, width = image.shape
-    grid = torch.stack((2.0 * u / (width - 1) - 1.0, 2.0 * v / (height - 1) - 1.0), dim=-1)
-    return F.grid_sample(image[None, None], grid[None, None], mode="bilinear", padding_mode="border", align_corners=True)[0, 0, 0]
+def _project(points: torch.Tensor, T_world_cam: torch.Tensor, camera: PinholeIntrinsics) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Pixels (P, 2) (u, v), depth (P,) and (P,) bool inside ``camera``'s image, in front of it, of homogeneous world points (P, 4)."""
+    local = points_in_cameras(T_world_cam[None], points)[0]
+    pixels, in_front = project_camera_points(local, camera)
+    u, v = pixels[:, 0].detach(), pixels[:, 1].detach()
+    inside = in_front & (u >= 0) & (u <= camera.width - 1) & (v >= 0) & (v <= camera.height - 1)
+    return pixels, -local[:, 2], inside
 
 
 def _visible(images: PosedImages, frame: int, points: torch.Tensor, tolerance: float) -> torch.Tensor:
     """(P,) bool: the depth image of ``frame`` reads the points' own depth (within ``tolerance`` of it)."""
     assert images.depths is not None and images.depth_intrinsics is not None
     camera = images.depth_intrinsics
-    u, v, depth = _project(points, pose_inverse(images.T_world_cam[frame].double()), camera)
-    inside = _inside(u, v, camera, 0.0) & (depth > 0)
-    reading = images.depths[frame].double()[v.round().long().clamp(0, camera.height - 1), u.round().long().clamp(0, camera.width - 1)]
+    pixels, depth, inside = _project(points, images.T_world_cam[frame].double(), camera)
+    column, row = pixels[:, 0].round().long().clamp(0, camera.width - 1), pixels[:, 1].round().long().clamp(0, camera.height - 1)
+    reading = images.depths[frame].double()[row, column]
     return inside & (reading > 0) & ((reading - depth).abs() <= tolerance * depth)
 
 
@@ -165,19 +150,22 @@ class _Views:
                 self.entries.append((points[keep], frames, visible[:, keep]))
 
 
-def _residuals(views: _Views, grey: torch.Tensor, T_cam_world: torch.Tensor, offset: torch.Tensor, camera: PinholeIntrinsics, min_views: int) -> torch.Tensor:
+def _residuals(
+    views: _Views, grey: torch.Tensor, T_world_depth: torch.Tensor, T_depth_colour: torch.Tensor, camera: PinholeIntrinsics, min_views: int
+) -> torch.Tensor:
     """(S,) differences between each view's grey value of a point and the point's mean over its views, for
     every view of every point seen in at least ``min_views`` views.
 
-    ``grey`` (K, H, W); ``T_cam_world`` (K, 4, 4): each frame's depth camera, world to camera; ``offset`` (4, 4): T_colour_depth.
+    ``grey`` (K, H, W, 1); ``T_world_depth`` (K, 4, 4): each frame's depth camera; ``T_depth_colour`` (4, 4): the colour camera in it.
     """
     residuals = []
     for points, frames, visible in views.entries:
         values, masks = [], []
         for row, frame in enumerate(frames):
-            u, v, depth = _project(points, offset @ T_cam_world[frame], camera)
-            masks.append(visible[row] & _inside(u.detach(), v.detach(), camera, 1.0) & (depth.detach() > 0))
-            values.append(_bilinear(grey[frame], u, v))
+            pixels, _, inside = _project(points, T_world_depth[frame] @ T_depth_colour, camera)
+            mask = visible[row] & inside
+            masks.append(mask)
+            values.append(sample_image(grey[frame], pixels[None], mask[None])[0, :, 0])
         value, mask = torch.stack(values), torch.stack(masks)
         mask = mask & (mask.sum(0) >= min_views)
         views_per_point = mask.sum(0).clamp(min=1)
@@ -217,25 +205,25 @@ def calibrate_colour_camera(images: PosedImages, config: CalibrationConfig | Non
     views = _Views(images, _reference_points(images, config), config)
     if not views.entries:
         raise DatasetError(f"{images.source}: no depth point is seen in {config.min_views} frames; cannot calibrate the colour camera")
-    grey = _grey(images.images, config.blur)
-    T_cam_world = pose_inverse(images.T_world_cam.double())
+    grey = _grey(images.images, config.blur)[..., None]
+    T_world_depth = images.T_world_cam.double()
     rotation = torch.zeros(3, dtype=torch.float64, requires_grad=True)
     translation = torch.zeros(3, dtype=torch.float64, requires_grad=True)
     optimiser = torch.optim.Adam([rotation, translation], lr=config.learning_rate)
     with torch.no_grad():
-        start = _residuals(views, grey, T_cam_world, torch.eye(4, dtype=torch.float64), images.intrinsics, config.min_views)
+        start = _residuals(views, grey, T_world_depth, torch.eye(4, dtype=torch.float64), images.intrinsics, config.min_views)
         scale = max(float(1.4826 * start.abs().median()), 1e-6)  # the residuals' robust spread with no offset
         before = _inconsistency(start, scale)
     for _ in range(config.iterations):
         T_depth_colour = make_pose(so3_exp(rotation), translation)
-        residuals = _residuals(views, grey, T_cam_world, pose_inverse(T_depth_colour), images.intrinsics, config.min_views)
+        residuals = _residuals(views, grey, T_world_depth, T_depth_colour, images.intrinsics, config.min_views)
         loss = _inconsistency(residuals, scale)
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
     with torch.no_grad():
         T_depth_colour = make_pose(so3_exp(rotation), translation)
-        after = _inconsistency(_residuals(views, grey, T_cam_world, pose_inverse(T_depth_colour), images.intrinsics, config.min_views), scale)
+        after = _inconsistency(_residuals(views, grey, T_world_depth, T_depth_colour, images.intrinsics, config.min_views), scale)
     counted = len(start)
     angle = math.degrees(float(rotation.detach().norm()))
     logger.info(
@@ -283,21 +271,22 @@ def colour_camera_matrix(value: object) -> torch.Tensor:
         raise DatasetError(f"{METADATA_KEY}: expected a 4x4 list of numbers, got {value!r}") from error
     if matrix.shape != (4, 4) or not torch.isfinite(matrix).all():
         raise DatasetError(f"{METADATA_KEY}: expected a finite 4x4 matrix, got shape {tuple(matrix.shape)}")
-    rotation = matrix[:3, :3]
-    rigid = torch.allclose(rotation.T @ rotation, torch.eye(3, dtype=torch.float64), atol=RIGID_TOLERANCE) and float(torch.linalg.det(rotation)) > 0
-    if not rigid or not torch.allclose(matrix[3], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)):
-        raise DatasetError(f"{METADATA_KEY}: expected a rigid transform (orthonormal rotation, last row 0 0 0 1), got {value}")
+    try:
+        validate_poses(matrix, name=METADATA_KEY, atol=RIGID_TOLERANCE)
+    except InvalidPoseError as error:
+        raise DatasetError(f"{METADATA_KEY}: expected a rigid transform ({error}), got {value}") from None
     return matrix
 
 
-def _checked_matrix(value: list[list[float]]) -> list[list[float]]:
-    colour_camera_matrix(value)
+def _checked_setting(value: list[list[float]] | None) -> list[list[float]] | None:
+    if value is not None:
+        colour_camera_matrix(value)
     return value
 
 
 ColourCameraSetting = Annotated[
     list[list[float]] | None,
-    AfterValidator(lambda value: None if value is None else _checked_matrix(value)),
+    AfterValidator(_checked_setting),
     Field(
         None,
         description="T_depth_colour of the map (its metadata, `locnerf map info`): the colour camera's pose in the depth camera's frame,"
@@ -307,6 +296,11 @@ ColourCameraSetting = Annotated[
 """A source setting naming the colour camera a map was built for (services' replay and scenario sources)."""
 
 
+def map_colour_camera(radiance_map: object) -> torch.Tensor | None:
+    """The ``T_depth_colour`` a map records (:func:`colour_camera_of`); None for maps without one or without metadata (the procedural world)."""
+    return colour_camera_of(getattr(radiance_map, "metadata", None) or {})
+
+
 def on_map_camera(images: PosedImages, radiance_map: object) -> PosedImages:
     """``images`` on the colour camera ``radiance_map`` was built for: moved by the ``T_depth_colour``
     its metadata records (maps built from RGB-D data posed at the depth camera), else as they are.
@@ -314,7 +308,7 @@ def on_map_camera(images: PosedImages, radiance_map: object) -> PosedImages:
     Raises:
         DatasetError: if the map's entry is not a rigid 4×4 transform.
     """
-    T_depth_colour = colour_camera_of(getattr(radiance_map, "metadata", None) or {})
+    T_depth_colour = map_colour_camera(radiance_map)
     if T_depth_colour is None or images.T_cam_depth is not None:
         return images
     return with_colour_camera(images, T_depth_colour)

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import enum
 import math
+from typing import Annotated
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.measurement import ExposureGainRange, MeasurementConfig
+from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 
 Matrix = list[list[float]]
@@ -36,13 +38,18 @@ def _check_pose(value: Matrix, name: str) -> Matrix:
     return value
 
 
-def _check_rigid(value: Matrix, name: str) -> Matrix:
-    """A 4×4 pose whose rotation is orthonormal with determinant +1 (to 1e-6)."""
-    _check_pose(value, name)
-    rotation = torch.tensor([row[:3] for row in value[:3]], dtype=torch.float64)
-    if not torch.allclose(rotation.T @ rotation, torch.eye(3, dtype=torch.float64), atol=1e-6) or float(torch.linalg.det(rotation)) <= 0:
-        raise ValueError(f"{name}: expected a rigid transform (orthonormal rotation, determinant +1), got {value}")
+def _check_depth_offset(value: Matrix) -> Matrix:
+    """``T_cam_depth``: a finite 4×4 rigid transform (:func:`locnerf.geometry.validation.validate_poses`)."""
+    _check_pose(value, "T_cam_depth")
+    try:
+        validate_poses(torch.tensor(value, dtype=torch.float64), name="T_cam_depth")
+    except InvalidPoseError as error:
+        raise ValueError(f"T_cam_depth: expected a rigid transform ({error}), got {value}") from None
     return value
+
+
+DepthOffset = Annotated[Matrix, AfterValidator(_check_depth_offset)]
+"""The depth camera's pose in the colour camera's frame: 4×4, metres, OpenGL axes."""
 
 
 def _check_covariance(value: Matrix, name: str) -> Matrix:
@@ -99,12 +106,9 @@ class DepthHeader(_Wire):
     width: int = Field(gt=0, description="Depth image width, pixels.")
     height: int = Field(gt=0, description="Depth image height, pixels.")
     intrinsics: PinholeIntrinsics = Field(description="Depth camera intrinsics (OpenCV pixel-centre convention).")
-    T_cam_depth: Matrix | None = Field(None, description="4×4 pose of the depth camera in the colour camera's frame, metres, OpenGL axes; None: the same pose.")
-
-    @field_validator("T_cam_depth")
-    @classmethod
-    def _offset(cls, value: Matrix | None) -> Matrix | None:
-        return None if value is None else _check_rigid(value, "T_cam_depth")
+    T_cam_depth: DepthOffset | None = Field(
+        None, description="4×4 pose of the depth camera in the colour camera's frame, metres, OpenGL axes; None: the same pose."
+    )
 
     @model_validator(mode="after")
     def _valid(self) -> DepthHeader:
@@ -243,15 +247,9 @@ class DepthRequest(_Wire):
 
     image: bytes = Field(description="The observed depth image: H×W uint16 millimetres, little-endian, 0 = no reading (H, W of `intrinsics`).")
     intrinsics: PinholeIntrinsics = Field(description="The depth camera.")
-    T_cam_depth: Matrix | None = Field(
+    T_cam_depth: DepthOffset | None = Field(
         None, description="4×4 pose of the depth camera in the particle (colour) camera's frame, metres, OpenGL axes; None: at the particle pose."
     )
-
-    @field_validator("T_cam_depth")
-    @classmethod
-    def _offset(cls, value: Matrix | None) -> Matrix | None:
-        return None if value is None else _check_rigid(value, "T_cam_depth")
-
     measurement: MeasurementConfig = Field(description="The measurement settings (its `depth` must be set).")
     pixels: list[list[float]] = Field(
         description="(M, 2) depth pixels (u, v) rendered from every pose; re-projection instead draws its points from the reference render."

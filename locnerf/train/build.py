@@ -117,12 +117,12 @@ class BuildConfig(BaseModel):
     depth_seed_alpha: float | None = Field(
         0.1, gt=0, lt=1, description="One-step opacity given at the start to the vertices nearest to back-projected depth points (None: no seeding)."
     )
+    depth_seed_points: int = Field(2_000_000, gt=0, description="Most depth points used for seeding (an evenly spaced subset).")
     calibrate_colour_camera: bool = Field(
         True,
         description="RGB-D data posed at the depth camera (7-Scenes): estimate the colour camera's offset from it (data/colour_camera.py),"
         " train the colour rays from the colour camera and record the offset in the map (inside the time budget).",
     )
-    depth_seed_points: int = Field(2_000_000, gt=0, description="Most depth points used for seeding (an evenly spaced subset).")
     exposure_learning_rate: float | None = Field(
         None,
         gt=0,

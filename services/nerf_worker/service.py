@@ -52,17 +52,18 @@ class NerfWorker:
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
         poses = poses.to(device)
+        depth = self._depth_observation(request.depth) if request.depth is not None else None
         reference = None
         if request.warp is not None and self.render_surface is not None:
-            reference = self._reference(request)
+            reference = self._reference(request, depth)
             log_likelihoods = warp_log_likelihoods(poses, reference, self._image(request), request.intrinsics, request.exponent, request.exposure_gain_range)
         else:
             if request.warp is not None and not self._warned_warp:
                 logger.warning("the map cannot place surfaces (an NDC or MLP map): re-projection requests are rendered from every pose instead")
                 self._warned_warp = True
             log_likelihoods = self._render(request, poses)
-        if request.depth is not None:
-            log_likelihoods = log_likelihoods + self._depth(request.depth, poses, reference).to(log_likelihoods)
+        if request.depth is not None and depth is not None:
+            log_likelihoods = log_likelihoods + self._depth(request.depth, depth, poses, reference).to(log_likelihoods)
         return UpdateResult(
             request_id=request.request_id,
             shard=request.shard,
@@ -98,28 +99,34 @@ class NerfWorker:
         pixels = np.frombuffer(request.warp.image, dtype=np.uint8).reshape(size.height, size.width, 3)
         return torch.from_numpy(pixels.copy()).to(self.map.device).float() / 255.0
 
-    def _reference(self, request: UpdateRequest) -> WarpReference:
-        """The reference render of a re-projection request (:mod:`locnerf.filter.warp`): the same on every shard (same pose and seed)."""
+    def _reference(self, request: UpdateRequest, depth: DepthObservation | None) -> WarpReference:
+        """The reference render of a re-projection request (:mod:`locnerf.filter.warp`): the same on every shard (same pose and seed),
+        with depth points inside the view of the request's depth camera (``depth``) when it has one."""
         warp = request.warp
         reference_pose = torch.tensor(warp.reference_pose, dtype=torch.float64)
         try:
             validate_poses(reference_pose, name="warp reference pose")
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
-        depth = request.depth
-        depth_pixels = depth.measurement.depth.pixels if depth is not None and depth.measurement.depth is not None else 0
-        depth_camera, T_cam_depth = None, None
-        if depth is not None:
-            depth_camera, T_cam_depth = depth.intrinsics, self._depth_observation(depth).T_cam_depth
+        part = request.depth
+        depth_pixels = part.measurement.depth.pixels if part is not None and part.measurement.depth is not None else 0
+        depth_camera, T_cam_depth = (depth.intrinsics, depth.T_cam_depth) if depth is not None else (None, None)
         generator = torch.Generator().manual_seed(warp.seed)
         return render_reference(self.render_surface, reference_pose, request.intrinsics, warp.measurement, generator, depth_pixels, depth_camera, T_cam_depth)
 
     def _depth_observation(self, depth: DepthRequest) -> DepthObservation:
-        """The request's depth image and depth camera in map units, on the map's device."""
-        depth_mm = np.frombuffer(depth.image, dtype="<u2").reshape(depth.intrinsics.height, depth.intrinsics.width)
-        return depth_observation(depth_mm, depth.intrinsics, self.map.normalization.scale, self.map.device, depth.T_cam_depth)
+        """The request's depth image and depth camera in map units, on the map's device (decoded once per request).
 
-    def _depth(self, depth: DepthRequest, poses: torch.Tensor, reference: WarpReference | None) -> torch.Tensor:
+        Raises:
+            RequestError: a depth image the observation refuses.
+        """
+        depth_mm = np.frombuffer(depth.image, dtype="<u2").reshape(depth.intrinsics.height, depth.intrinsics.width)
+        try:
+            return depth_observation(depth_mm, depth.intrinsics, self.map.normalization.scale, self.map.device, depth.T_cam_depth)
+        except ValueError as error:
+            raise RequestError(f"depth part: {error}") from None
+
+    def _depth(self, depth: DepthRequest, observation: DepthObservation, poses: torch.Tensor, reference: WarpReference | None) -> torch.Tensor:
         """The depth term (N,) of an RGB-D frame for poses (N, 4, 4): the reference's depth points
         re-projected when the colour term was, else the request's depth pixels rendered from every
         pose; zeros (colour only, warned once) when the map cannot place surfaces."""
@@ -130,7 +137,6 @@ class NerfWorker:
             return torch.zeros(poses.shape[0], dtype=torch.float32, device=poses.device)
         config = depth.measurement.depth
         try:
-            observation = self._depth_observation(depth)
             if reference is not None:
                 return warped_depth_log_likelihoods(poses, reference.depth_points, observation, config)
             pixels = torch.tensor(depth.pixels, dtype=torch.float32).reshape(-1, 2).to(self.map.device)
