@@ -8,7 +8,7 @@ from locnerf.geometry.averaging import (
     weighted_pose_mean,
 )
 from locnerf.geometry.conversions import axis_angle_to_matrix, matrix_to_ypr, ypr_to_matrix
-from locnerf.geometry.frames import opencv_to_opengl, opengl_to_opencv
+from locnerf.geometry.frames import camera_extrinsic_opencv_to_opengl, opencv_to_opengl, opengl_to_opencv
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.quaternion import (
     matrix_to_quaternion,
@@ -31,6 +31,7 @@ __all__ = [
     "matrix_to_quaternion",
     "matrix_to_ypr",
     "ypr_to_matrix",
+    "camera_extrinsic_opencv_to_opengl",
     "opencv_to_opengl",
     "opengl_to_opencv",
     "pose_inverse",

@@ -40,3 +40,16 @@ def validate_poses(pose: torch.Tensor, name: str = "pose", atol: float = 1e-3) -
     if ((pose[..., 3, :] - bottom).abs() > atol).any():
         raise InvalidPoseError(f"{name}: last row must be [0, 0, 0, 1]")
     validate_rotations(pose[..., :3, :3], name=f"{name} rotation", atol=atol)
+
+
+def validate_pose_setting(value: list[list[float]], name: str) -> list[list[float]]:
+    """A configured extrinsic: raise :class:`InvalidPoseError` unless the nested list ``value`` is one
+    finite 4×4 rigid transform (as :func:`validate_poses`); returns ``value`` unchanged (for validators)."""
+    try:
+        pose = torch.tensor(value, dtype=torch.float64)
+    except (TypeError, ValueError) as error:
+        raise InvalidPoseError(f"{name}: expected a 4×4 list of numbers, got {value!r} ({error})") from None
+    if pose.shape != (4, 4):
+        raise InvalidPoseError(f"{name}: expected a 4×4 matrix, got shape {tuple(pose.shape)}")
+    validate_poses(pose, name=name)
+    return value

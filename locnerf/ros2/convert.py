@@ -22,9 +22,11 @@ from locnerf.geometry.so3 import hat
 from locnerf.messages.codec import DecodeError
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2.types import message_class
+from locnerf.sim.events import depth_millimetres
 
 RAW_ENCODINGS = ("rgb8", "bgr8", "mono8")
 COMPRESSED_FORMATS = ("jpeg", "png")
+DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
 
 
 # ---------------------------------------------------------------- time
@@ -155,6 +157,31 @@ def pixels_from_image(image: object) -> np.ndarray:
     return np.ascontiguousarray(rows[..., ::-1] if image.encoding == "bgr8" else rows)
 
 
+def millimetres_from_depth_image(image: object) -> np.ndarray:
+    """sensor_msgs/msg/Image of depth -> (H, W) uint16 millimetres along the optical axis, 0 = no reading.
+
+    ``16UC1`` and ``mono16`` are millimetres (REP 118; 0 stays "no reading"); ``32FC1`` is metres,
+    rounded to millimetres (:func:`locnerf.sim.events.depth_millimetres`, as locnerf's own sources
+    send depth): NaN, ±inf, readings <= 0 and readings beyond the 65.534 m that uint16 holds become 0.
+    Rows may be padded (``step``); ``is_bigendian`` is honoured.
+
+    Raises:
+        DecodeError: ``ros2_depth_encoding`` for another encoding, ``ros2_depth_size`` when the data
+            do not hold ``height`` rows of ``step`` bytes with ``width`` pixels each.
+    """
+    if image.encoding not in DEPTH_ENCODINGS:
+        raise DecodeError("ros2_depth_encoding", f"depth image encoding {image.encoding!r}, expected one of {DEPTH_ENCODINGS}")
+    floats = image.encoding == "32FC1"
+    dtype = np.dtype(np.float32 if floats else np.uint16).newbyteorder(">" if image.is_bigendian else "<")
+    height, width, step = image.height, image.width, image.step
+    data = np.asarray(image.data, dtype=np.uint8)
+    if width == 0 or height == 0 or step < width * dtype.itemsize or data.size != step * height:
+        raise DecodeError("ros2_depth_size", f"{data.size} bytes for a {width}×{height} {image.encoding} depth image with step {step}")
+    rows = data.reshape(height, step)[:, : width * dtype.itemsize]
+    values = np.ascontiguousarray(rows).view(dtype).reshape(height, width)
+    return depth_millimetres(torch.from_numpy(values.astype(np.float64))) if floats else values.astype(np.uint16)
+
+
 def pixels_from_compressed(image: object) -> np.ndarray:
     """sensor_msgs/msg/CompressedImage (jpeg or png) -> RGB (H, W, 3) uint8 (decoded by OpenCV).
 
@@ -175,3 +202,18 @@ def undistort(pixels: np.ndarray, k: np.ndarray, distortion: np.ndarray) -> np.n
     if not np.any(distortion != 0):
         return pixels
     return cv2.undistort(pixels, k, distortion)
+
+
+def undistort_depth(millimetres: np.ndarray, k: np.ndarray, distortion: np.ndarray) -> np.ndarray:
+    """(H, W) uint16 depth undistorted to the pinhole camera ``k`` (unchanged when all coefficients are 0).
+
+    The same pixel mapping as :func:`undistort` (OpenCV's undistortion maps with the camera matrix
+    kept), sampled with nearest neighbour: a depth value is a point's distance along the optical
+    axis, which undistortion does not change, and interpolating across an edge would invent depths
+    between foreground and background. Pixels that map outside the image get 0, no reading.
+    """
+    if not np.any(distortion != 0):
+        return millimetres
+    height, width = millimetres.shape
+    map_x, map_y = cv2.initUndistortRectifyMap(k, distortion, None, k, (width, height), cv2.CV_32FC1)
+    return cv2.remap(millimetres, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)

@@ -16,7 +16,13 @@ one-slot buffer, newest only). One thread calls :meth:`FilterDriver.step` in a l
 With a ROS 2 bridge (:mod:`services.ros2.filter_bridge`), ROS odometry, images and commands
 join the same lanes as locnerf's own (their payload is a ``(CDR, attachment)`` pair, translated on
 this thread; a translation failure is counted like any bad message), camera infos join the normal
-lane, and the bridge publishes the ROS counterparts of every pose and particle cloud.
+lane, and the bridge publishes the ROS counterparts of every pose and particle cloud. ROS depth
+images wait in a small buffer of the bridge (a few of the newest; they are large), each announced
+by a ``depth`` arrival in the normal lane, whose handling translates one of them into the bridge's
+pairing. A ROS colour image taken in step 4 waits in that pairing for the depth image of its
+stamp, and step 4 asks for the finished frame on every turn: the turn whose step 1 handles a late
+depth image completes the pair in its step 4 (a colour image without depth goes alone once the
+pairing's wait is over, at the first turn after it).
 
 An odometry message therefore waits at most for one piece of non-odometry work that had already
 started when it arrived. The durations of every kind of work and the odometry's wait are kept in
@@ -82,6 +88,8 @@ class FilterDriver:
             "initial_pose": lambda key, payload: self._translated(key, payload, "initial_pose", loop.handle_initial_pose),
             "global_localization": lambda key, payload: self._translated(key, payload, "global_localization", loop.handle_global_localization),
             "camera_info": lambda key, payload: self._translated(key, payload, "camera_info", lambda _none: []),
+            "depth_camera_info": lambda key, payload: self._translated(key, payload, "depth_camera_info", lambda _none: []),
+            "depth": lambda _key, _payload: self._take_depth(),
             "worker": loop.worker_changed,
             "image": lambda _key, _payload: self._take_image(),
         }
@@ -106,18 +114,25 @@ class FilterDriver:
             self.ros2.subscribe(
                 lambda urgent, kind, key, received: self._arrive(URGENT if urgent else NORMAL, kind, key, received),
                 lambda key, received: self._image_arrived(key, received),
+                lambda: self._arrive(NORMAL, "depth", "", None),
             )
             handles.append(self.ros2)
         return handles
 
+    def _counted(self, translate: Callable[..., Any], *args: Any) -> Any:
+        """``translate(*args)``, a ROS 2 translation; a failure is counted as a bad message and gives None."""
+        try:
+            return translate(*args)
+        except DecodeError as error:
+            self.loop.bad.record(error.kind, error.reason)
+            return None
+
     def _translated(self, key: str, payload: Any, kind: str, handle: Callable[[Any], Outgoing]) -> Outgoing:
         """``handle`` a locnerf payload; a ROS 2 one, ``(CDR, attachment)``, is translated by the
-        bridge first (a failure is counted as a bad message and dropped)."""
+        bridge first (a failure is counted as a bad message and dropped; a camera info gives nothing to handle)."""
         if isinstance(payload, tuple):
-            try:
-                payload = getattr(self.ros2, kind)(key, payload)
-            except DecodeError as error:
-                self.loop.bad.record(error.kind, error.reason)
+            payload = self._counted(getattr(self.ros2, kind), key, payload)
+            if payload is None:
                 return []
         return handle(payload)
 
@@ -128,12 +143,29 @@ class FilterDriver:
         self.images.put((key, payload))
         self.inbox.put(NORMAL, ("image", key, None, self.clock()))
 
+    def _take_depth(self) -> Outgoing:
+        """Translate the oldest ROS depth image waiting in the bridge into its pairing (a colour image
+        it completes leaves in step 4 of this turn)."""
+        self._counted(self.ros2.sensors.take_depth)
+        return []
+
     def _take_image(self) -> Outgoing:
+        """Hand the newest image to the loop; a ROS colour image waits for its depth in the bridge,
+        which hands on its frame once the pairing is settled (asked on every call)."""
         image = self.images.take()
-        self.loop.images_replaced_upstream = self.images.replaced
+        sensors = self.ros2.sensors if self.ros2 is not None else None
+        frame = None
+        if image is not None and not isinstance(image[1], tuple):
+            frame = image[1]
+        elif sensors is not None:
+            if image is not None:
+                self._counted(sensors.image, *image)
+            frame = self._counted(sensors.paired_image)
+        self.loop.images_replaced_upstream = self.images.replaced + (sensors.pairing.replaced if sensors is not None else 0)
+        self.loop.images_without_depth = sensors.images_without_depth if sensors is not None else 0
         self.loop.images_received = self.images.received
         self.loop.inbox_dropped = self.inbox.dropped
-        return self._translated(*image, "image", self.loop.handle_image) if image is not None else []
+        return self.loop.handle_image(frame) if frame is not None else []
 
     def _run(self, kind: str, work: Callable[[], Outgoing], only_if_output: bool = False) -> None:
         """Do one piece of work, publish its output, record its duration under ``kind`` (periodic

@@ -25,7 +25,7 @@ from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.localizer import Localizer, MergeOutcome, SearchRegion
 from locnerf.filter.measurement import MeasurementConfig, observed_colours, sample_pixels_of_image
-from locnerf.geometry.validation import InvalidPoseError, validate_poses
+from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting, validate_poses
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, decode_rgbd, encode
 from locnerf.messages.schemas import (
@@ -94,11 +94,7 @@ class FilterLoopConfig(BaseModel):
     @field_validator("T_body_cam")
     @classmethod
     def _extrinsic(cls, value: list[list[float]]) -> list[list[float]]:
-        pose = torch.tensor(value, dtype=torch.float64)
-        if pose.shape != (4, 4):
-            raise ValueError(f"T_body_cam: expected a 4×4 matrix, got shape {tuple(pose.shape)}")
-        validate_poses(pose, name="T_body_cam")
-        return value
+        return validate_pose_setting(value, "T_body_cam")
 
 
 class FilterLoop:
@@ -139,6 +135,7 @@ class FilterLoop:
         self.images_replaced = 0
         self.images_replaced_upstream = 0
         self.images_received = 0
+        self.images_without_depth = 0
         self.inbox_dropped = 0
         self.odometry_restarts = 0
         self._stepped_back: list[float] = []
@@ -445,6 +442,7 @@ class FilterLoop:
             "odometry_restarts": self.odometry_restarts,
             "inbox_dropped": self.inbox_dropped,
             "images_received": self.images_received,
+            "images_without_depth": self.images_without_depth,
             "state_save_failures": self.persistence.failures,
             "depth_without_readings": self.depth_without_readings,
         }

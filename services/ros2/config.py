@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from locnerf.geometry.validation import validate_pose_setting
 
 
 class Ros2Config(BaseModel):
@@ -23,6 +25,31 @@ class Ros2Config(BaseModel):
         "raw", description="raw: sensor_msgs/msg/Image; compressed: sensor_msgs/msg/CompressedImage (jpeg, png)."
     )
     camera_info_topic: str = Field("camera/camera_info", description="sensor_msgs/msg/CameraInfo with the intrinsics and distortion of the images.")
+    depth_topic: str = Field(
+        "",
+        description="sensor_msgs/msg/Image of depth (16UC1 or mono16 millimetres, 32FC1 metres) paired with the colour images by stamp, "
+        "e.g. camera/aligned_depth_to_color/image_raw (a RealSense's depth registered to its colour camera); '' = colour only.",
+    )
+    depth_camera_info_topic: str = Field(
+        "",
+        description="sensor_msgs/msg/CameraInfo of the depth camera ('' = the depth image is registered to the colour camera: "
+        "it has the colour image's size and takes the colour camera's intrinsics and distortion).",
+    )
+    T_colour_depth: list[list[float]] | None = Field(
+        None,
+        description="With depth_camera_info_topic: 4×4 pose of the depth camera's optical frame in the colour camera's optical frame "
+        "(ROS optical axes, as OpenCV: x right, y down, z forward), metres; None: the two cameras share their pose. "
+        "Converted to locnerf's OpenGL axes for the depth image's header.",
+    )
+    depth_pairing_tolerance: float = Field(
+        0.02, ge=0, description="Largest stamp difference between a colour image and the depth image paired with it, seconds."
+    )
+    depth_max_wait: float = Field(
+        0.1,
+        ge=0,
+        description="Longest wall-clock wait for a colour image's depth image, seconds; after it the colour image goes on alone "
+        "(counted as images_without_depth).",
+    )
     initial_pose_topic: str = Field(
         "initialpose", description="geometry_msgs/msg/PoseWithCovarianceStamped of base_frame_id in global_frame_id (RViz's 2D Pose Estimate)."
     )
@@ -36,3 +63,14 @@ class Ros2Config(BaseModel):
     odom_frame_id: str = Field("odom", description="The odometry frame of the VIO.")
     base_frame_id: str = Field("base_link", description="The robot body frame (T_body_cam relates it to the camera).")
     publish_tf: bool = Field(True, description="Publish map -> odom on tf_topic, as nav2_amcl's tf_broadcast.")
+
+    @field_validator("T_colour_depth")
+    @classmethod
+    def _extrinsic(cls, value: list[list[float]] | None) -> list[list[float]] | None:
+        return None if value is None else validate_pose_setting(value, "T_colour_depth")
+
+    @model_validator(mode="after")
+    def _depth_camera(self) -> Ros2Config:
+        if self.T_colour_depth is not None and not self.depth_camera_info_topic:
+            raise ValueError("T_colour_depth is set but depth_camera_info_topic is '': a depth image registered to the colour camera has its pose")
+        return self

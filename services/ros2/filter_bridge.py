@@ -16,6 +16,7 @@ counters (visible in FilterStatus).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import torch
@@ -35,7 +36,7 @@ from locnerf.ros2.types import EMPTY_SERVICE, message_class, serialize
 from services.filter_loop.service import FilterLoop
 from services.ros2.config import Ros2Config
 from services.ros2.node import Ros2Node
-from services.ros2.sensors import Arrive, Received, Ros2Sensors, open_sample
+from services.ros2.sensors import Arrive, ImageArrived, Received, Ros2Sensors, open_sample
 from services.transport import Bus
 
 POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
@@ -46,16 +47,18 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 class FilterRos2Bridge:
     """Translates between a :class:`FilterLoop` and ROS 2 topics on ``bus``.
 
-    ``odometry``, ``camera_info`` and ``image`` translate sensor samples (:class:`Ros2Sensors`),
-    ``initial_pose`` and ``global_localization`` the commands; the driver calls them by kind.
+    ``odometry``, ``camera_info`` and ``depth_camera_info`` translate sensor samples
+    (:class:`Ros2Sensors`), ``initial_pose`` and ``global_localization`` the commands; the driver
+    calls them by kind. Images go through :attr:`sensors` (``image``, ``take_depth``, ``paired_image``).
 
     Args:
         loop: the filter (its T_body_cam, odometry history, particles and bad-message counters).
         bus: the Zenoh session.
         config: topics, domain, frames.
+        clock: monotonic wall-clock seconds (the wait of a colour image for its depth image).
     """
 
-    def __init__(self, loop: FilterLoop, bus: Bus, config: Ros2Config) -> None:
+    def __init__(self, loop: FilterLoop, bus: Bus, config: Ros2Config, clock: Callable[[], float] = time.monotonic) -> None:
         self.loop = loop
         self.config = config
         self.node = Ros2Node(bus, config.domain_id, config.node_name, config.namespace)
@@ -64,24 +67,26 @@ class FilterRos2Bridge:
         self.pose_publisher = self.node.publisher(config.pose_topic, POSE_WITH_COVARIANCE)
         self.particles_publisher = self.node.publisher(config.particles_topic, POSE_ARRAY)
         self.tf_publisher = self.node.publisher(config.tf_topic, TF_MESSAGE) if config.publish_tf else None
-        self.sensors = Ros2Sensors(self.node, config)
-        self.odometry, self.camera_info, self.image = self.sensors.odometry, self.sensors.camera_info, self.sensors.image
+        self.sensors = Ros2Sensors(self.node, config, clock)
+        self.odometry, self.camera_info = self.sensors.odometry, self.sensors.camera_info
+        self.depth_camera_info = self.sensors.depth_camera_info
         self.names: dict[str, str] = {}
 
     # ------------------------------------------------------------------ wiring
-    def subscribe(self, arrive: Arrive, image_arrived: Callable[[str, Received], None]) -> None:
+    def subscribe(self, arrive: Arrive, image_arrived: ImageArrived, depth_arrived: Callable[[], None]) -> None:
         """Declare the subscriptions and the service; callbacks only enqueue.
 
         Args:
             arrive: ``arrive(urgent, kind, key, (payload, attachment))`` queues a message for the filter thread.
-            image_arrived: ``image_arrived(key, (payload, attachment))`` keeps the newest image.
+            image_arrived: ``image_arrived(key, (payload, attachment))`` keeps the newest colour image.
+            depth_arrived: ``depth_arrived()`` announces a depth image kept by :attr:`sensors` (``take_depth`` takes it).
         """
         config = self.config
         self.names["initial_pose"] = self.node.subscription(
             config.initial_pose_topic, POSE_WITH_COVARIANCE, lambda key, payload, attachment: arrive(False, "initial_pose", key, (payload, attachment))
         )
         if config.sensors:
-            self.sensors.subscribe(arrive, image_arrived)
+            self.sensors.subscribe(arrive, image_arrived, depth_arrived)
         response = serialize(message_class(f"{EMPTY_SERVICE}_Response")(), f"{EMPTY_SERVICE}_Response")
 
         def global_localization(key: str, payload: bytes, _request: Attachment | None) -> bytes | None:

@@ -149,7 +149,7 @@ def relay_ros2(bus: Bus, config: IngestConfig, stop: threading.Event, status: St
     try:
         while not stop.is_set():
             ingest.step(timeout=0.05)
-            status.publish_if_due({"events_sent": ingest.sent})
+            status.publish_if_due(ingest.counters())
     finally:
         ingest.close()
     return ingest.sent

@@ -2,15 +2,19 @@
 republished on locnerf's ``sensors/odom`` and ``sensors/image``, for a filter that does not speak
 ROS 2 itself (a filter with ``[ros2] sensors = true`` reads the topics directly instead).
 
-Callbacks only enqueue: odometry and camera infos into a FIFO, images into a one-slot buffer
-(newest only). One thread translates and publishes, the queued odometry and camera infos before
-the image.
+Callbacks only enqueue: odometry, camera infos and depth-image wake-ups into a FIFO, colour images
+into a one-slot buffer (newest only), depth images into the translator's small buffer. One thread
+translates and publishes: the queued odometry, camera infos and depth images first, then the
+newest colour image, which waits for the depth image of its stamp when a depth topic is set
+(:class:`~services.ros2.depth_pairing.DepthPairing`) and leaves as one RGB-D frame.
 Bad samples are counted by kind and logged once per kind (:class:`BadMessages`), then dropped.
 """
 
 from __future__ import annotations
 
 import logging
+import time
+from collections.abc import Callable
 
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError
@@ -23,6 +27,7 @@ from services.transport import Bus, Inbox, LatestSlot
 logger = logging.getLogger(__name__)
 
 _TOPICS = {"odometry": keys.ODOMETRY, "image": keys.IMAGE}
+_DEPTH_ARRIVED = ("depth", "", (b"", None))  # a wake-up: the sample waits in Ros2Sensors.depth_samples
 
 
 class Ros2Ingest:
@@ -31,46 +36,72 @@ class Ros2Ingest:
     Args:
         bus: the Zenoh session (the same one carries ROS 2 and locnerf's keys).
         robot_id: locnerf key prefix of the republished messages.
-        config: topic names, domain, namespace and frames (the filter's output fields are unused).
+        config: topic names, domain, namespace, frames and depth pairing (the filter's output fields are unused).
         bad: where bad samples are counted (the ingest's status reports it); a new one when None.
+        clock: monotonic wall-clock seconds (the wait of a colour image for its depth image).
     """
 
-    def __init__(self, bus: Bus, robot_id: str, config: Ros2Config, bad: BadMessages | None = None) -> None:
+    def __init__(self, bus: Bus, robot_id: str, config: Ros2Config, bad: BadMessages | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.bus = bus
         self.robot_id = robot_id
         self.node = Ros2Node(bus, config.domain_id, f"{config.node_name}_ingest", config.namespace)
-        self.sensors = Ros2Sensors(self.node, config)
+        self.sensors = Ros2Sensors(self.node, config, clock)
         self.inbox: Inbox[tuple[str, str, Received]] = Inbox(capacity=256)
         self.images: LatestSlot[tuple[str, Received]] = LatestSlot()
         self.bad = BadMessages("sensor_ingest") if bad is None else bad
         self.sent = 0
         self.sensors.subscribe(
-            lambda _urgent, kind, key, received: self.inbox.put((kind, key, received)), lambda key, received: self.images.put((key, received))
+            lambda _urgent, kind, key, received: self.inbox.put((kind, key, received)),
+            lambda key, received: self.images.put((key, received)),
+            lambda: self.inbox.put(_DEPTH_ARRIVED),
         )
 
     def step(self, timeout: float) -> None:
-        """Republish what arrived, waiting up to ``timeout`` seconds for odometry or a camera info:
-        every queued odometry and camera info first (so an image finds the camera info sent before
-        it), then the newest image."""
-        item = self.inbox.get(timeout)
+        """Republish what arrived, waiting up to ``timeout`` seconds (less while a colour image waits
+        for its depth) for odometry, a camera info or a depth image: every queued one first (so an
+        image finds the camera info sent before it, and its depth image if it has come), then the
+        newest colour image once its pairing is settled."""
+        waiting = self.sensors.pairing.time_left()
+        item = self.inbox.get(timeout if waiting is None else min(timeout, waiting))
         while item is not None:
-            self._republish(*item)
+            kind, key, received = item
+            if kind == "depth":
+                self._translate(self.sensors.take_depth)
+            else:
+                self._republish(kind, key, received)
             item = self.inbox.get(0.0)
         image = self.images.take()
         if image is not None:
-            self._republish("image", *image)
+            self._translate(self.sensors.image, *image)
+        frame = self._translate(self.sensors.paired_image)
+        if frame is not None:
+            self._publish("image", frame)
 
-    def _republish(self, kind: str, key: str, received: Received) -> None:
+    def counters(self) -> dict[str, int]:
+        """What the ingest's status reports besides its bad messages."""
+        counts = {"events_sent": self.sent, "images_replaced": self.images.replaced + self.sensors.pairing.replaced}
+        if self.sensors.config.depth_topic:
+            counts["images_without_depth"] = self.sensors.images_without_depth
+        return counts
+
+    def _translate(self, translate: Callable[..., bytes | None], *args: object) -> bytes | None:
+        """``translate(*args)``; a bad sample is counted and gives None."""
         try:
-            payload = getattr(self.sensors, kind)(key, received)
+            return translate(*args)
         except DecodeError as error:
             self.bad.record(error.kind, error.reason)
-            return
-        if kind in _TOPICS:
-            self.bus.publish(keys.key(self.robot_id, _TOPICS[kind]), payload)
-            self.sent += 1
+            return None
+
+    def _republish(self, kind: str, key: str, received: Received) -> None:
+        payload = self._translate(getattr(self.sensors, kind), key, received)
+        if payload is not None and kind in _TOPICS:
+            self._publish(kind, payload)
+
+    def _publish(self, kind: str, payload: bytes) -> None:
+        self.bus.publish(keys.key(self.robot_id, _TOPICS[kind]), payload)
+        self.sent += 1
 
     def close(self) -> None:
         """Undeclare the node (its tokens vanish from the ROS 2 graph)."""
         self.node.close()
-        logger.info("ros2 ingest: %d messages republished, %d bad (%s)", self.sent, self.bad.total, dict(self.bad.counts))
+        logger.info("ros2 ingest: %d messages republished, %d bad (%s), counters %s", self.sent, self.bad.total, dict(self.bad.counts), self.counters())

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from locnerf.geometry import (
+    camera_extrinsic_opencv_to_opengl,
     make_pose,
     matrix_to_quaternion,
     matrix_to_ypr,
@@ -81,6 +82,18 @@ def test_camera_frame_conversion_flips_y_and_z(generator):
     assert torch.allclose(pose_cv[:, :3, 2], -pose_gl[:, :3, 2])
     assert torch.allclose(pose_cv[:, :3, 0], pose_gl[:, :3, 0])
     assert torch.allclose(pose_cv[:, :3, 3], pose_gl[:, :3, 3])
+
+
+def test_camera_extrinsic_conversion_changes_the_axes_of_both_cameras(generator):
+    """Oracle: the relative pose of two OpenGL camera poses, each converted from OpenCV on its own."""
+    T_world_a_cv, T_world_b_cv = make_pose(random_rotations(2, generator), torch.randn(2, 3, dtype=torch.float64, generator=generator))
+    expected = pose_inverse(opencv_to_opengl(T_world_a_cv)) @ opencv_to_opengl(T_world_b_cv)
+    converted = camera_extrinsic_opencv_to_opengl(pose_inverse(T_world_a_cv) @ T_world_b_cv)
+    assert torch.allclose(converted, expected, atol=1e-12)
+    # By hand: 2 cm along OpenCV y (down) is 2 cm along -y (OpenGL up is -down).
+    down = torch.eye(4, dtype=torch.float64)
+    down[1, 3] = 0.02
+    assert torch.allclose(camera_extrinsic_opencv_to_opengl(down)[:3, 3], torch.tensor([0.0, -0.02, 0.0], dtype=torch.float64))
 
 
 def test_pose_inverse(generator):

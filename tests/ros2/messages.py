@@ -38,8 +38,23 @@ def image(stamp: float, pixels: np.ndarray, encoding: str = "rgb8", frame: str =
     )
 
 
-def camera_info(stamp: float, intrinsics: PinholeIntrinsics, frame: str = "camera_optical_frame") -> object:
-    """sensor_msgs/CameraInfo of an undistorted pinhole camera."""
+def depth_image(stamp: float, depth: np.ndarray, encoding: str = "16UC1", frame: str = "camera_optical_frame") -> object:
+    """sensor_msgs/Image of a depth image (H, W): millimetres for 16UC1 and mono16, metres for 32FC1 (little-endian)."""
+    height, width = depth.shape
+    values = np.ascontiguousarray(depth, dtype="<f4" if encoding == "32FC1" else "<u2")
+    return message_class("sensor_msgs/msg/Image")(
+        header=convert.header(stamp, frame),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=values.itemsize * width,
+        data=values.view(np.uint8).reshape(-1),
+    )
+
+
+def camera_info(stamp: float, intrinsics: PinholeIntrinsics, frame: str = "camera_optical_frame", distortion: np.ndarray | None = None) -> object:
+    """sensor_msgs/CameraInfo of a pinhole camera with plumb_bob ``distortion`` (5,) (None: undistorted)."""
     k = np.array([intrinsics.fx, 0.0, intrinsics.cx, 0.0, intrinsics.fy, intrinsics.cy, 0.0, 0.0, 1.0])
     p = np.array([intrinsics.fx, 0.0, intrinsics.cx, 0.0, 0.0, intrinsics.fy, intrinsics.cy, 0.0, 0.0, 0.0, 1.0, 0.0])
     roi = message_class("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
@@ -48,7 +63,7 @@ def camera_info(stamp: float, intrinsics: PinholeIntrinsics, frame: str = "camer
         height=intrinsics.height,
         width=intrinsics.width,
         distortion_model="plumb_bob",
-        d=np.zeros(5),
+        d=np.zeros(5) if distortion is None else np.asarray(distortion, dtype=np.float64),
         k=k,
         r=np.eye(3).reshape(-1),
         p=p,

@@ -18,12 +18,15 @@ from locnerf.ros2.convert import (
     covariance_from_ros,
     covariance_to_ros,
     intrinsics_from_camera_info,
+    millimetres_from_depth_image,
     pixels_from_compressed,
     pixels_from_image,
     pose_from_message,
     pose_message,
     seconds,
     time_message,
+    undistort,
+    undistort_depth,
 )
 from locnerf.ros2.types import message_class
 from tests.ros2 import messages
@@ -131,3 +134,59 @@ def test_camera_info_gives_intrinsics_and_rejects_a_zero_focal_length():
     info.k, info.distortion_model, info.d = np.eye(3).reshape(-1), "equidistant", np.ones(4)
     with pytest.raises(DecodeError, match="equidistant"):
         intrinsics_from_camera_info(info)
+
+
+def test_depth_images_in_millimetres_are_taken_as_they_are():
+    millimetres = np.random.default_rng(2).integers(0, 65536, (4, 5), dtype=np.uint16)
+    for encoding in ("16UC1", "mono16"):
+        assert np.array_equal(millimetres_from_depth_image(messages.depth_image(0.0, millimetres, encoding)), millimetres)
+    big_endian = messages.depth_image(0.0, millimetres)
+    big_endian.is_bigendian, big_endian.data = 1, millimetres.astype(">u2").view(np.uint8).reshape(-1)
+    assert np.array_equal(millimetres_from_depth_image(big_endian), millimetres)
+    padded = messages.depth_image(0.0, millimetres)
+    rows = np.concatenate((millimetres.astype("<u2").view(np.uint8), np.full((4, 3), 255, np.uint8)), axis=1)
+    padded.step, padded.data = rows.shape[1], rows.reshape(-1)
+    assert np.array_equal(millimetres_from_depth_image(padded), millimetres)
+
+
+def test_depth_images_in_metres_become_millimetres_and_invalid_readings_zero():
+    """By hand: 1.2344 m -> 1234 mm, 1.6 mm -> 2 mm, 0.4 mm rounds to 0 (no reading, as on the wire),
+    65.534 m is the largest reading uint16 holds; 65.535 m, NaN, ±inf, 0 and negative readings are none."""
+    metres = np.array([[1.2344, 0.0016, 65.534, 65.535], [np.nan, np.inf, -np.inf, -0.5], [0.0, 0.0004, 2.0, 1e9]], dtype=np.float32)
+    expected = np.array([[1234, 2, 65534, 0], [0, 0, 0, 0], [0, 0, 2000, 0]], dtype=np.uint16)
+    converted = millimetres_from_depth_image(messages.depth_image(0.0, metres, "32FC1"))
+    assert converted.dtype == np.uint16 and np.array_equal(converted, expected)
+
+
+def test_bad_depth_images_raise_with_their_kind():
+    depth = messages.depth_image(0.0, np.ones((4, 5), np.uint16))
+    depth.encoding = "8UC1"
+    with pytest.raises(DecodeError, match="'8UC1'") as error:
+        millimetres_from_depth_image(depth)
+    assert error.value.kind == "ros2_depth_encoding"
+    for field, value in (("step", 8), ("height", 5), ("width", 0)):
+        short = messages.depth_image(0.0, np.ones((4, 5), np.uint16))
+        setattr(short, field, value)
+        with pytest.raises(DecodeError) as error:
+            millimetres_from_depth_image(short)
+        assert error.value.kind == "ros2_depth_size", field
+
+
+def test_depth_is_undistorted_with_the_colour_mapping_by_nearest_neighbour():
+    """Each depth pixel encodes where it came from (1000 + column + 100 row); the colour undistortion
+    of an image whose channels are the column and the row (bilinear) says where each output pixel
+    samples. Nearest and bilinear sampling of the same mapping agree to one pixel, and nearest
+    sampling invents no value (no depth between an object and its background)."""
+    k = np.array([[60.0, 0.0, 40.0], [0.0, 60.0, 30.0], [0.0, 0.0, 1.0]])
+    distortion = np.array([-0.2, 0.05, 0.001, -0.001, 0.0])
+    rows, columns = np.mgrid[0:60, 0:80]
+    depth = (1000 + columns + 100 * rows).astype(np.uint16)
+    where = undistort(np.stack((columns, rows, np.zeros_like(rows)), axis=-1).astype(np.uint8), k, distortion).astype(np.int64)
+    undistorted = undistort_depth(depth, k, distortion).astype(np.int64)
+    inside = (undistorted > 0) & (where[..., 0] >= 1) & (where[..., 0] <= 78) & (where[..., 1] >= 1) & (where[..., 1] <= 58)
+    assert inside.mean() > 0.8
+    assert np.abs((undistorted[inside] - 1000) % 100 - where[..., 0][inside]).max() <= 1
+    assert np.abs((undistorted[inside] - 1000) // 100 - where[..., 1][inside]).max() <= 1
+    assert set(np.unique(undistorted)) <= set(np.unique(depth)) | {0}
+    assert not np.array_equal(undistorted, depth), "the distortion moves pixels"
+    assert undistort_depth(depth, k, np.zeros(5)) is depth
