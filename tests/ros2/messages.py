@@ -25,30 +25,24 @@ def odometry(stamp: float, T_odom_base: torch.Tensor, odom_frame: str = "odom", 
 
 def image(stamp: float, pixels: np.ndarray, encoding: str = "rgb8", frame: str = "camera_optical_frame") -> object:
     """sensor_msgs/Image of RGB pixels (H, W, 3) uint8, written as ``encoding`` (rgb8 or bgr8)."""
-    height, width = pixels.shape[:2]
-    data = pixels[..., ::-1] if encoding == "bgr8" else pixels
-    return message_class("sensor_msgs/msg/Image")(
-        header=convert.header(stamp, frame),
-        height=height,
-        width=width,
-        encoding=encoding,
-        is_bigendian=0,
-        step=3 * width,
-        data=np.ascontiguousarray(data).reshape(-1),
-    )
+    return _image_message(stamp, frame, encoding, np.ascontiguousarray(pixels[..., ::-1] if encoding == "bgr8" else pixels))
 
 
 def depth_image(stamp: float, depth: np.ndarray, encoding: str = "16UC1", frame: str = "camera_optical_frame") -> object:
     """sensor_msgs/Image of a depth image (H, W): millimetres for 16UC1 and mono16, metres for 32FC1 (little-endian)."""
-    height, width = depth.shape
-    values = np.ascontiguousarray(depth, dtype="<f4" if encoding == "32FC1" else "<u2")
+    return _image_message(stamp, frame, encoding, np.ascontiguousarray(depth, dtype="<f4" if encoding == "32FC1" else "<u2"))
+
+
+def _image_message(stamp: float, frame: str, encoding: str, values: np.ndarray) -> object:
+    """sensor_msgs/Image of the contiguous little-endian ``values`` (H, W) or (H, W, C), rows unpadded."""
+    height, width = values.shape[:2]
     return message_class("sensor_msgs/msg/Image")(
         header=convert.header(stamp, frame),
         height=height,
         width=width,
         encoding=encoding,
         is_bigendian=0,
-        step=values.itemsize * width,
+        step=values.nbytes // height,
         data=values.view(np.uint8).reshape(-1),
     )
 
