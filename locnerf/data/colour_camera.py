@@ -39,7 +39,7 @@ from locnerf.errors import DatasetError
 from locnerf.filter.warp import points_in_cameras, project_camera_points, sample_image
 from locnerf.geometry.se3 import make_pose, pose_inverse
 from locnerf.geometry.so3 import so3_exp
-from locnerf.geometry.validation import InvalidPoseError, validate_poses
+from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting
 from locnerf.render.camera import PinholeIntrinsics
 
 logger = logging.getLogger(__name__)
@@ -266,16 +266,10 @@ def colour_camera_matrix(value: object) -> torch.Tensor:
         DatasetError: if it is not a rigid 4×4 transform (orthonormal rotation, determinant +1, last row 0 0 0 1).
     """
     try:
-        matrix = torch.tensor(value, dtype=torch.float64)
-    except (TypeError, ValueError) as error:
-        raise DatasetError(f"{METADATA_KEY}: expected a 4x4 list of numbers, got {value!r}") from error
-    if matrix.shape != (4, 4) or not torch.isfinite(matrix).all():
-        raise DatasetError(f"{METADATA_KEY}: expected a finite 4x4 matrix, got shape {tuple(matrix.shape)}")
-    try:
-        validate_poses(matrix, name=METADATA_KEY, atol=RIGID_TOLERANCE)
+        validate_pose_setting(value, METADATA_KEY, atol=RIGID_TOLERANCE)
     except InvalidPoseError as error:
-        raise DatasetError(f"{METADATA_KEY}: expected a rigid transform ({error}), got {value}") from None
-    return matrix
+        raise DatasetError(str(error)) from None
+    return torch.tensor(value, dtype=torch.float64)
 
 
 def _checked_setting(value: list[list[float]] | None) -> list[list[float]] | None:

@@ -42,14 +42,18 @@ def validate_poses(pose: torch.Tensor, name: str = "pose", atol: float = 1e-3) -
     validate_rotations(pose[..., :3, :3], name=f"{name} rotation", atol=atol)
 
 
-def validate_pose_setting(value: list[list[float]], name: str) -> list[list[float]]:
-    """A configured extrinsic: raise :class:`InvalidPoseError` unless the nested list ``value`` is one
-    finite 4×4 rigid transform (as :func:`validate_poses`); returns ``value`` unchanged (for validators)."""
+def validate_pose_setting(value: object, name: str, atol: float = 1e-3) -> list[list[float]]:
+    """A configured or transmitted extrinsic: raise :class:`InvalidPoseError` unless ``value`` is one
+    finite 4×4 rigid transform given as nested lists (as :func:`validate_poses`, within ``atol``);
+    returns ``value`` unchanged (for validators)."""
     try:
         pose = torch.tensor(value, dtype=torch.float64)
     except (TypeError, ValueError) as error:
         raise InvalidPoseError(f"{name}: expected a 4×4 list of numbers, got {value!r} ({error})") from None
     if pose.shape != (4, 4):
-        raise InvalidPoseError(f"{name}: expected a 4×4 matrix, got shape {tuple(pose.shape)}")
-    validate_poses(pose, name=name)
+        raise InvalidPoseError(f"{name}: expected a finite 4×4 matrix, got shape {tuple(pose.shape)}")
+    try:
+        validate_poses(pose, name=name, atol=atol)
+    except InvalidPoseError as error:
+        raise InvalidPoseError(f"{name}: expected a rigid transform ({error}), got {value}") from None
     return value

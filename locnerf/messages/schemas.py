@@ -16,7 +16,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validat
 
 from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.measurement import ExposureGainRange, MeasurementConfig
-from locnerf.geometry.validation import InvalidPoseError, validate_poses
+from locnerf.geometry.validation import validate_pose_setting
 from locnerf.render.camera import PinholeIntrinsics
 
 Matrix = list[list[float]]
@@ -39,13 +39,8 @@ def _check_pose(value: Matrix, name: str) -> Matrix:
 
 
 def _check_depth_offset(value: Matrix) -> Matrix:
-    """``T_cam_depth``: a finite 4×4 rigid transform (:func:`locnerf.geometry.validation.validate_poses`)."""
-    _check_pose(value, "T_cam_depth")
-    try:
-        validate_poses(torch.tensor(value, dtype=torch.float64), name="T_cam_depth")
-    except InvalidPoseError as error:
-        raise ValueError(f"T_cam_depth: expected a rigid transform ({error}), got {value}") from None
-    return value
+    """``T_cam_depth``: a finite 4×4 rigid transform (:func:`locnerf.geometry.validation.validate_pose_setting`)."""
+    return validate_pose_setting(_check_pose(value, "T_cam_depth"), "T_cam_depth")
 
 
 DepthOffset = Annotated[Matrix, AfterValidator(_check_depth_offset)]

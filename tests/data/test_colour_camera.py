@@ -102,8 +102,8 @@ def test_a_map_records_its_colour_camera(sequence: PosedImages) -> None:
 @pytest.mark.parametrize(
     ("value", "expected"),
     [
-        ([[1.0, 0.0], [0.0, 1.0]], "finite 4x4 matrix"),
-        ("identity", "4x4 list of numbers"),
+        ([[1.0, 0.0], [0.0, 1.0]], "finite 4×4 matrix"),
+        ("identity", "4×4 list of numbers"),
         ([[2.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]], "rigid transform"),
         ([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 1.0, 1.0]], "rigid transform"),
     ],
