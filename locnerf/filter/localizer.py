@@ -43,6 +43,7 @@ from locnerf.filter.motion import MotionNoiseConfig, PivotNoise, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
+from locnerf.filter.tempering import TemperingConfig, tempering_exponent
 from locnerf.filter.warp import SurfaceRays, render_reference, warp_log_likelihoods, warp_reference_pose
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
@@ -78,6 +79,9 @@ class LocalizerConfig(BaseModel):
     )
     convergence_protection: ConvergenceProtectionConfig = Field(
         default_factory=ConvergenceProtectionConfig, description="Re-drawing of a few particles before each update."
+    )
+    tempering: TemperingConfig = Field(
+        default_factory=TemperingConfig, description="Adaptive tempering of updates on a spread cloud (off unless min_ess_fraction is set)."
     )
     recovery: RecoveryConfig = Field(default_factory=RecoveryConfig, description="Augmented-MCL kidnapping recovery.")
     keyframe_start: KeyframeStartConfig = Field(
@@ -184,7 +188,7 @@ class Localizer:
         self._keyframe_start_pending = False
         self._last_warped: bool | None = None
         self._start_up: tuple[float, float, float] = (0.0, 1.0, 0.0)
-        self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0}
+        self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0, "tempered": 0}
 
     # ----------------------------------------------------------------- initialisation
     def initialize(self, poses: torch.Tensor) -> None:
@@ -361,11 +365,23 @@ class Localizer:
         if warped != self._last_warped:
             self._recovery.reset()
             self._last_warped = warped
-        combined = particles.log_weights.double().cpu() + per_particle
+        log_weights = particles.log_weights.double().cpu()
+        combined = log_weights + self._tempered(log_weights, per_particle)
         particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
         plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
         injected = self._resample(particles, plan, find_candidates)
         return self._record(MergeOutcome.MERGED, injected)
+
+    def _tempered(self, log_weights: torch.Tensor, per_particle: torch.Tensor) -> torch.Tensor:
+        """The update's log-likelihoods (N,) times the tempering exponent β (:mod:`locnerf.filter.tempering`)."""
+        tempering = self.config.tempering
+        if tempering.min_ess_fraction is None or (tempering.coarse_only and self.stage != AnnealingStage.COARSE):
+            return per_particle
+        beta = tempering_exponent(log_weights, per_particle, tempering.min_ess_fraction)
+        if beta < 1.0:
+            self.counters["tempered"] += 1
+            logger.debug("update tempered by beta=%.3g", beta)
+        return torch.where(torch.isfinite(per_particle), beta * per_particle, per_particle)
 
     @staticmethod
     def _log_best_likelihood(particles: ParticleSet, per_particle: torch.Tensor) -> float:

@@ -437,6 +437,7 @@ class FilterLoop:
             "updates_merged": merged["merged"],
             "stale_results": merged["stale"],
             "degenerate_updates": merged["degenerate"],
+            "updates_tempered": merged["tempered"],
             "images_replaced": self.images_replaced + self.images_replaced_upstream,
             "bad_messages": self.bad.total,
             "odometry_restarts": self.odometry_restarts,

@@ -84,7 +84,12 @@ def test_map_eval_on_the_test_split_beats_a_black_image(tiny_kitchen_map: Path, 
 
 @pytest.mark.parametrize(
     ("command", "config", "particles"),
-    [("single-image", "kitchen_single_image.toml", 300), ("global", "kitchen_global.toml", 600), ("global", "kitchen_global_keyframes.toml", 600)],
+    [
+        ("single-image", "kitchen_single_image.toml", 300),
+        ("global", "kitchen_global.toml", 600),
+        ("global", "kitchen_global_keyframes.toml", 600),
+        ("global", "kitchen_global_rgbd.toml", 2400),
+    ],
 )
 def test_relocalization_on_test_frames_scores_every_trial(
     command: str, config: str, particles: int, tiny_kitchen_map: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
@@ -92,8 +97,10 @@ def test_relocalization_on_test_frames_scores_every_trial(
     """Two seeded test-split views, 5 updates each, with the published configuration: every trial
     scored, finite and held out. Errors stay within the room (a few metres): the start protocols
     put the start within ~0.2 m (single image) or in the 2 m cube (global) around the truth; with
-    ``keyframe_start`` each global trial's first image re-draws 90 % of its 600 particles around map keyframes."""
-    caplog.set_level(logging.INFO, logger="locnerf.filter.localizer")
+    ``keyframe_start`` each global trial's first image re-draws 90 % of its 600 particles around map keyframes;
+    with the RGB-D file's tempering the first update on each uniform start (2400 particles weighed by the depth
+    images, γ_d 16) is tempered, and no update of the other files is."""
+    caplog.set_level(logging.DEBUG, logger="locnerf.filter.localizer")
     argv = ["eval", command, "--map", str(tiny_kitchen_map), "--data", str(KITCHEN), "--split", "test", "--downscale", DOWNSCALE, "--trials", "2"]
     report = run_cli(argv + ["--updates", "5", "--config", str(REPO_ROOT / "configs" / config), "--seed", "0", "--device", "cpu", "--json"], capsys)
     assert report["updates"] == 5 and report["particles"] == particles
@@ -110,6 +117,8 @@ def test_relocalization_on_test_frames_scores_every_trial(
         assert history["rays"] == sorted(history["rays"]) and history["rays"][-1] == trial["rays"] > 0
     seeded = [r.getMessage() for r in caplog.records if r.getMessage().startswith("keyframe start:")]
     assert seeded == (["keyframe start: 540 of 600 particles re-drawn around 8 matching keyframes"] * 2 if "keyframes" in config else [])
+    tempered = [r.getMessage() for r in caplog.records if r.getMessage().startswith("update tempered")]
+    assert (len(tempered) >= 2) if "rgbd" in config else not tempered, tempered
 
 
 def tracking_argv(tiny_kitchen_map: Path, seconds: str, config: str = "kitchen_live.toml") -> list[str]:
