@@ -74,6 +74,7 @@ def test_a_merge_whose_snapshot_predates_predictions_and_a_resample(world, gener
     harness.answer(first)
     counters = harness.loop.counters()
     assert counters["updates_merged"] == 2 and counters["stale_results"] == 0
+    assert counters["updates_tempered"] == 0  # the harness's localizer does not temper
     assert harness.loop.localizer.particles.generation == first.generation + 2
 
 
