@@ -87,7 +87,8 @@ def render_reference(
     depth_camera: PinholeIntrinsics | None = None,
     T_cam_depth: torch.Tensor | None = None,
 ) -> WarpReference:
-    """Render the reference view at every ``warp.stride``-th pixel and keep M = ``warp.pixels`` of them.
+    """Render the reference view at every ``warp.stride``-th pixel and keep M = ``warp.pixels`` of them
+    (all of them when the lattice has fewer, as a small, downscaled camera may).
 
     The M are drawn from that coarse render as the measurement draws pixels from an observed image
     (``measurement.sampling``: by the render's gradient), so they sit where the map has texture and
@@ -121,7 +122,8 @@ def render_reference(
     depth = torch.where(seen, camera_depth, torch.full_like(camera_depth, torch.inf)).reshape(rows, columns)
     eligible = ~beyond_an_edge(depth, warp.occlusion_margin, math.ceil(warp.occlusion_pixels / warp.stride))
     coarse = colours.reshape(rows, columns, 3)
-    chosen = sample_pixels_of_image(coarse.cpu(), measurement, generator, warp.pixels, eligible.reshape(-1))
+    # A small image (a downscaled camera) may have fewer lattice pixels than ``warp.pixels``: then it keeps them all.
+    chosen = sample_pixels_of_image(coarse.cpu(), measurement, generator, min(warp.pixels, rows * columns), eligible.reshape(-1))
     index = (chosen[:, 1].long() * columns + chosen[:, 0].long()).to(colours.device)
     surface = seen[index, None]
     homogeneous = torch.where(

@@ -87,6 +87,17 @@ def test_warp_of_the_reference_pose_reads_the_reference_colours(world: Procedura
     assert float(log_likelihood[0]) > 4.0 * math.log(200 / 1e-8)  # SSE below 1e-8 over 200 pixels
 
 
+def test_a_camera_smaller_than_the_pixel_count_keeps_every_lattice_pixel(world: ProceduralWorld, generator: torch.Generator) -> None:
+    """A 20×15 camera at stride 1 has 300 lattice pixels: asking for 1024 (the live RGB-D file on a downscaled
+    camera) keeps those that are not beyond a depth edge, instead of failing the worker."""
+    truth = true_pose(world)
+    camera = PinholeIntrinsics.from_fov(20, 15, math.radians(70))
+    measurement = MeasurementConfig(warp=WarpConfig(max_spread=0.1, pixels=1024, stride=1))
+    reference = render_reference(world.render_surface, truth, camera, measurement, generator)
+    assert reference.rays == 300 and 0 < reference.colours.shape[0] <= 300
+    assert reference.points.shape == (reference.colours.shape[0], 4)
+
+
 def test_vectorised_warp_equals_a_particle_by_particle_loop(world: ProceduralWorld, generator: torch.Generator) -> None:
     """Float64: N particles at once give each particle's likelihood computed alone, with and without the exposure fit."""
     truth = true_pose(world)
