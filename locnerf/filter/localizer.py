@@ -43,7 +43,7 @@ from locnerf.filter.motion import MotionNoiseConfig, PivotNoise, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
-from locnerf.filter.tempering import TemperingConfig, tempering_exponent
+from locnerf.filter.tempering import TemperingConfig, tempered, tempering_exponent
 from locnerf.filter.warp import SurfaceRays, render_reference, warp_log_likelihoods, warp_reference_pose
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
@@ -366,13 +366,13 @@ class Localizer:
             self._recovery.reset()
             self._last_warped = warped
         log_weights = particles.log_weights.double().cpu()
-        combined = log_weights + self._tempered(log_weights, per_particle)
+        combined = log_weights + self._temper(log_weights, per_particle)
         particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
         plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
         injected = self._resample(particles, plan, find_candidates)
         return self._record(MergeOutcome.MERGED, injected)
 
-    def _tempered(self, log_weights: torch.Tensor, per_particle: torch.Tensor) -> torch.Tensor:
+    def _temper(self, log_weights: torch.Tensor, per_particle: torch.Tensor) -> torch.Tensor:
         """The update's log-likelihoods (N,) times the tempering exponent β (:mod:`locnerf.filter.tempering`)."""
         tempering = self.config.tempering
         if tempering.min_ess_fraction is None or (tempering.coarse_only and self.stage != AnnealingStage.COARSE):
@@ -381,7 +381,7 @@ class Localizer:
         if beta < 1.0:
             self.counters["tempered"] += 1
             logger.debug("update tempered by beta=%.3g", beta)
-        return torch.where(torch.isfinite(per_particle), beta * per_particle, per_particle)
+        return tempered(per_particle, beta)
 
     @staticmethod
     def _log_best_likelihood(particles: ParticleSet, per_particle: torch.Tensor) -> float:

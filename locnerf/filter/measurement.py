@@ -218,7 +218,7 @@ def sample_pixels_of_image(
     (Efraimidis–Spirakis: the k smallest of ``E_i / w_i``, ``E_i ~ Exp(1)``), the rest the k
     smallest of uniform keys among the pixels not chosen: two top-k passes over the image.
     ``eligible`` (H·W,) bool, row-major, restricts both draws to some pixels (all when None); the
-    count is then at most the number of eligible pixels.
+    count is then at most the number of eligible pixels (a count above them, even above H·W, takes them all).
 
     Returns:
         (M, 2) float32 as (u, v) = (column, row).
@@ -226,10 +226,12 @@ def sample_pixels_of_image(
     height, width = int(image.shape[0]), int(image.shape[1])
     count = config.pixels if count is None else count
     if eligible is None:
+        _check_pixel_count(height, width, count)
         if config.sampling == "uniform":
             return sample_pixels(height, width, count, generator)
         eligible = torch.ones(height * width, dtype=torch.bool)
-    _check_pixel_count(height, width, count)
+    else:
+        _check_pixel_count(height, width, min(count, height * width))
     eligible = eligible.cpu()
     count = min(count, int(eligible.sum()))
     chosen = torch.zeros(0, dtype=torch.int64)

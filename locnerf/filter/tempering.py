@@ -22,8 +22,9 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.filter.particles import normalise_log_weights
+from locnerf.filter.resampling import effective_sample_size
 
-__all__ = ["TemperingConfig", "tempering_exponent"]
+__all__ = ["TemperingConfig", "tempered", "tempering_exponent"]
 
 _BISECTION_STEPS = 30
 
@@ -43,10 +44,14 @@ class TemperingConfig(BaseModel):
     coarse_only: bool = Field(True, description="Temper only while the annealing stage is COARSE (the cloud is spread).")
 
 
+def tempered(log_likelihoods: torch.Tensor, beta: float) -> torch.Tensor:
+    """``β · log L`` of (N,) log-likelihoods, −inf kept (0 · −inf would be NaN)."""
+    return torch.where(torch.isfinite(log_likelihoods), beta * log_likelihoods, log_likelihoods)
+
+
 def _ess_fraction(log_weights: torch.Tensor) -> float:
-    """Kish's effective sample size over N of log-weights (N,) (not necessarily normalised)."""
-    weights = torch.exp(normalise_log_weights(log_weights))
-    return float(1.0 / (weights * weights).sum()) / log_weights.numel()
+    """Effective sample size over N of log-weights (N,) (not necessarily normalised)."""
+    return effective_sample_size(torch.exp(normalise_log_weights(log_weights))) / log_weights.numel()
 
 
 def tempering_exponent(log_weights: torch.Tensor, log_likelihoods: torch.Tensor, min_ess_fraction: float) -> float:
@@ -72,9 +77,9 @@ def tempering_exponent(log_weights: torch.Tensor, log_likelihoods: torch.Tensor,
     shifted = log_likelihoods - log_likelihoods[finite].max()
 
     def ess(beta: float) -> float:
-        return _ess_fraction(log_weights + torch.where(finite, beta * shifted, shifted))
+        return _ess_fraction(log_weights + tempered(shifted, beta))
 
-    if ess(1.0) >= min_ess_fraction or _ess_fraction(log_weights + torch.where(finite, 0.0, shifted)) < min_ess_fraction:
+    if ess(1.0) >= min_ess_fraction or ess(0.0) < min_ess_fraction:
         return 1.0
     low, high = 0.0, 1.0
     for _ in range(_BISECTION_STEPS):

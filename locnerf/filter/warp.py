@@ -122,8 +122,7 @@ def render_reference(
     depth = torch.where(seen, camera_depth, torch.full_like(camera_depth, torch.inf)).reshape(rows, columns)
     eligible = ~beyond_an_edge(depth, warp.occlusion_margin, math.ceil(warp.occlusion_pixels / warp.stride))
     coarse = colours.reshape(rows, columns, 3)
-    # A small image (a downscaled camera) may have fewer lattice pixels than ``warp.pixels``: then it keeps them all.
-    chosen = sample_pixels_of_image(coarse.cpu(), measurement, generator, min(warp.pixels, rows * columns), eligible.reshape(-1))
+    chosen = sample_pixels_of_image(coarse.cpu(), measurement, generator, warp.pixels, eligible.reshape(-1))
     index = (chosen[:, 1].long() * columns + chosen[:, 0].long()).to(colours.device)
     surface = seen[index, None]
     homogeneous = torch.where(
