@@ -13,6 +13,9 @@ one-slot buffer, newest only). One thread calls :meth:`FilterDriver.step` in a l
 4. takes the newest image; returns again if odometry arrived meanwhile;
 5. runs the periodic work (expire, start an update, particle cloud, status) and publishes it.
 
+Each early return publishes the status if it is due: odometry that arrives faster than the thread
+handles it (an overload) would otherwise starve step 5, and with it the one message that reports it.
+
 With a ROS 2 bridge (:mod:`services.ros2.filter_bridge`), ROS odometry, images and commands
 join the same lanes as locnerf's own (their payload is a ``(CDR, attachment)`` pair, translated on
 this thread; a translation failure is counted like any bad message), camera infos join the normal
@@ -161,11 +164,26 @@ class FilterDriver:
             if image is not None:
                 self._counted(sensors.image, *image)
             frame = self._counted(sensors.paired_image)
+        self._sync_counters()
+        return self.loop.handle_image(frame) if frame is not None else []
+
+    def _sync_counters(self) -> None:
+        """Copy the counts kept on this side of the loop (images replaced or received in the slot and
+        the ROS pairing, inbox drops) into the loop's counters, which its status reports."""
+        sensors = self.ros2.sensors if self.ros2 is not None else None
         self.loop.images_replaced_upstream = self.images.replaced + (sensors.pairing.replaced if sensors is not None else 0)
         self.loop.images_without_depth = sensors.images_without_depth if sensors is not None else 0
         self.loop.images_received = self.images.received
         self.loop.inbox_dropped = self.inbox.dropped
-        return self.loop.handle_image(frame) if frame is not None else []
+
+    def _odometry_waiting(self) -> bool:
+        """Odometry is waiting, so the rest of this turn is skipped; the status still leaves when due: under an
+        overload that keeps odometry always waiting, it is what tells an operator so (and costs well under a millisecond)."""
+        if not self.inbox.waiting(URGENT):
+            return False
+        self._sync_counters()
+        self._run("tick", self.loop.status_if_due, only_if_output=True)
+        return True
 
     def _run(self, kind: str, work: Callable[[], Outgoing], only_if_output: bool = False) -> None:
         """Do one piece of work, publish its output, record its duration under ``kind`` (periodic
@@ -205,15 +223,14 @@ class FilterDriver:
             if kind == "odometry":
                 self.timings.record_wait(self.clock() - arrived)
             self._run(kind, lambda: self._handlers[kind](key, payload))
-        if self.inbox.waiting(URGENT):
-            return
-        self._run_estimate()
-        if self.inbox.waiting(URGENT):
-            return
-        self._run("image", self._take_image, only_if_output=True)
-        if self.inbox.waiting(URGENT):
-            return
-        self._run("tick", self.loop.tick, only_if_output=True)
+        for work in (
+            self._run_estimate,
+            lambda: self._run("image", self._take_image, only_if_output=True),
+            lambda: self._run("tick", self.loop.tick, only_if_output=True),
+        ):
+            if self._odometry_waiting():
+                return
+            work()
         if self.clock() - self._last_log >= self.log_period:
             self._last_log = self.clock()
             logger.info("%s", self.timings.summary())

@@ -367,10 +367,15 @@ class FilterLoop:
         if self.running and now - self._last_particles >= 1.0 / self.config.particles_rate:
             self._last_particles = now
             out.append(self._particles_message())
-        if now - self._last_status >= 1.0 / self.config.status_rate:
-            self._last_status = now
-            out.append((self._key(keys.STATUS), encode(self.status())))
-        return out
+        return out + self.status_if_due()
+
+    def status_if_due(self) -> Outgoing:
+        """The status message when its period has passed (``status_rate``), else nothing."""
+        now = self.clock()
+        if now - self._last_status < 1.0 / self.config.status_rate:
+            return []
+        self._last_status = now
+        return [(self._key(keys.STATUS), encode(self.status()))]
 
     def _start_update(self, now: float) -> Outgoing:
         header, pixels, depth = self._image

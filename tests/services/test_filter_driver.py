@@ -8,8 +8,8 @@ import torch
 from locnerf.config import preset
 from locnerf.filter.localizer import Localizer, SearchRegion
 from locnerf.messages import keys
-from locnerf.messages.codec import encode, encode_image
-from locnerf.messages.schemas import ImageHeader, Odometry
+from locnerf.messages.codec import decode, encode, encode_image
+from locnerf.messages.schemas import FilterStatus, ImageHeader, Odometry
 from locnerf.sim.world import ProceduralWorld
 from services.filter_loop.driver import FilterDriver
 from services.filter_loop.lanes import LaneInbox
@@ -64,7 +64,37 @@ def test_queued_odometry_is_published_before_the_update_that_an_image_starts():
     mine = len(published)
     for _ in range(4):
         driver.step(timeout=0.0)
-    outputs = [key.rsplit("/", 1)[0] if key.startswith("update/request") else key for key in published[mine:]]
+    # (the status, due at the first turn, may leave between them: it is no update work)
+    outputs = [key.rsplit("/", 1)[0] if key.startswith("update/request") else key for key in published[mine:] if key != "filter/status"]
     assert outputs[:2] == ["filter/pose", "filter/pose"]
     assert "update/request" in outputs[2:]
     assert len(driver.timings.odometry_wait) == 2
+
+
+def test_the_status_leaves_when_due_while_odometry_keeps_the_thread_busy():
+    """Odometry always waiting skips every turn's periodic work; the status still goes out once per period,
+    with the images the slot replaced meanwhile (the overload it reports)."""
+    world = ProceduralWorld.default()
+    bounds = world.camera_bounds()
+    region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
+    localizer = Localizer(preset("llff").model_copy(update={"particles": 20}), torch.Generator().manual_seed(0), region=region)
+    now = [0.0]
+    loop = FilterLoop(ROBOT, localizer, world.normalization, region, FilterLoopConfig(status_rate=1.0), lambda: now[0])
+    bus = MemoryBus()
+    statuses: list[FilterStatus] = []
+    bus.subscribe(keys.key(ROBOT, keys.STATUS), lambda _key, payload: statuses.append(decode(payload, FilterStatus)))
+    driver = FilterDriver(loop, bus, clock=lambda: now[0])
+    driver.subscribe()
+    identity = torch.eye(4, dtype=torch.float64).tolist()
+    intrinsics = world.default_intrinsics
+    frame = torch.zeros(intrinsics.height, intrinsics.width, 3, dtype=torch.uint8).numpy()
+    for index in range(60):  # 4 s at 15 Hz, two odometry messages queued per turn: one is always waiting
+        stamp = index / 15
+        header = ImageHeader(stamp=stamp, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics)
+        bus.publish(keys.key(ROBOT, keys.IMAGE), encode_image(header, frame))
+        bus.publish(keys.key(ROBOT, keys.ODOMETRY), encode(Odometry(stamp=stamp, T_odom_body=identity)))
+        bus.publish(keys.key(ROBOT, keys.ODOMETRY), encode(Odometry(stamp=stamp + 1 / 30, T_odom_body=identity)))
+        now[0] = stamp
+        driver.step(timeout=0.0)
+    assert len(statuses) == 4  # at 0, 1, 2 and 3 s
+    assert statuses[-1].counters["images_replaced"] > 0
