@@ -11,7 +11,8 @@ Targets (all at ``--particles`` N and ``--pixels`` M):
 * ``depth_rendered`` / ``depth_warp``: the depth term of an RGB-D frame (:mod:`locnerf.filter.depth_measurement`)
   for those N poses, its depth image the map's surface depth at the view: M depth pixels rendered from
   every pose, or the reference render with M depth points re-projected into every pose (the colour
-  term not included; maps that can place surfaces only);
+  term not included; maps that can place surfaces only); ``depth_surface_distance``: the M depth
+  pixels' points placed by every pose and looked up in the map's surface-distance layer (maps that have one);
 * ``predict``: eq. 4 for N particles (odometry increment and tangent noise);
 * ``resample_multinomial`` / ``resample_systematic``: N indices from N weights;
 * ``rotation_mean``: weighted geodesic L2 mean of N rotations;
@@ -37,10 +38,18 @@ import torch
 from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
-from locnerf.field.protocol import RadianceMap, surface_renderer
+from locnerf.field.protocol import RadianceMap, surface_distance_of, surface_renderer
 from locnerf.field.stored_map import StoredMap
 from locnerf.filter.annealing import AnnealingStage
-from locnerf.filter.depth_measurement import DepthConfig, render_depth_image, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
+from locnerf.filter.depth_measurement import (
+    DepthConfig,
+    SurfaceDistanceLookup,
+    render_depth_image,
+    rendered_depth_log_likelihoods,
+    sample_depth_pixels,
+    surface_distance_log_likelihoods,
+    warped_depth_log_likelihoods,
+)
 from locnerf.filter.estimate import estimate_from_particles
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels, sample_pixels_of_image
 from locnerf.filter.motion import propagate_poses
@@ -110,7 +119,15 @@ def converged_targets(
         targets["likelihood_warp"] = lambda: warp_log_likelihoods(
             poses, render_reference(render_surface, view.cpu(), intrinsics, measurement, generator), image, intrinsics
         )
-        targets |= depth_targets(render_surface, view, poses, measurement.model_copy(update={"depth": DepthConfig(pixels=pixels)}), intrinsics, generator)
+        targets |= depth_targets(
+            render_surface,
+            view,
+            poses,
+            measurement.model_copy(update={"depth": DepthConfig(pixels=pixels)}),
+            intrinsics,
+            generator,
+            surface_distance_of(radiance_map),
+        )
     return targets
 
 
@@ -121,12 +138,17 @@ def depth_targets(
     measurement: MeasurementConfig,
     intrinsics: PinholeIntrinsics,
     generator: torch.Generator,
+    surface_distance: SurfaceDistanceLookup | None = None,
 ) -> dict[str, Callable[[], object]]:
-    """``depth_rendered`` and ``depth_warp``: the depth term of poses (N, 4, 4) for the map's own depth image at ``view`` (4, 4)."""
+    """``depth_rendered``, ``depth_warp`` and, for maps with a surface-distance layer, ``depth_surface_distance``: the depth
+    term of poses (N, 4, 4) for the map's own depth image at ``view`` (4, 4)."""
     config = measurement.depth
     observation = render_depth_image(render_surface, view.float(), intrinsics)
     depth_pixels = sample_depth_pixels(observation, config, generator).to(view.device)
-    return {
+    looked_up = {}
+    if surface_distance is not None:
+        looked_up["depth_surface_distance"] = lambda: surface_distance_log_likelihoods(poses, observation, depth_pixels, surface_distance, config)
+    return looked_up | {
         "depth_rendered": lambda: rendered_depth_log_likelihoods(poses, observation, depth_pixels, render_surface, config),
         "depth_warp": lambda: warped_depth_log_likelihoods(
             poses, render_reference(render_surface, view.cpu(), intrinsics, measurement, generator, config.pixels, intrinsics).depth_points, observation, config

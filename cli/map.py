@@ -1,4 +1,4 @@
-"""``locnerf map build|eval|render|info``: build a map from posed images, measure it, look at it."""
+"""``locnerf map build|eval|ceiling|render|compare|add-surface-distance|prune|info``: build a map from posed images, measure it, look at it."""
 
 from __future__ import annotations
 
@@ -17,13 +17,16 @@ from locnerf.data.colour_camera import on_map_camera
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.plots import plot_images_beside_renders
+from locnerf.eval.reprojection_ceiling import CeilingConfig, reprojection_ceiling
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import load_map, read_map_archive, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
+from locnerf.field.surface_distance import SurfaceDistanceConfig
 from locnerf.render.image import render_image
 from locnerf.train import BuildConfig, RoomConfig, build_map, evaluate_map, psnr
+from locnerf.train.surface_layer import surface_distance_of_frames
 
 logger = logging.getLogger(__name__)
 
@@ -85,6 +88,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     compare.add_argument("--out", required=True, help="PNG to write")
     compare.add_argument("--device", default="auto")
     compare.set_defaults(func=run_compare)
+
+    ceiling = commands.add_parser(
+        "ceiling", help="RGB-D data: how well the training frames, re-projected through each held-out view's own depth, explain it, beside the map"
+    )
+    ceiling.add_argument("map", help="map file")
+    ceiling.add_argument("--data", required=True, help="RGB-D data-set folder (7-Scenes)")
+    ceiling.add_argument("--split", default="test", help="held-out split")
+    ceiling.add_argument("--train-split", default="train", help="the split the map was built from")
+    ceiling.add_argument("--downscale", type=int)
+    ceiling.add_argument("--stride", type=int, default=10, help="every N-th held-out view")
+    ceiling.add_argument("--candidates", type=int, default=CeilingConfig().candidates, help="training frames tried per view (nearest first)")
+    ceiling.add_argument("--device", default="auto")
+    ceiling.add_argument("--json", action="store_true", help="print JSON (per view and summary)")
+    ceiling.set_defaults(func=run_ceiling)
+
+    layer = commands.add_parser(
+        "add-surface-distance", help="add (or replace) a map's surface-distance layer from the depth images it was built from (RGB-D data)"
+    )
+    layer.add_argument("map", help="map file (rewritten in place unless --out)")
+    layer.add_argument("--data", required=True, help="RGB-D data-set folder the map was built from")
+    layer.add_argument("--split", default="train", help="the split the map was built from")
+    layer.add_argument("--downscale", type=int)
+    layer.add_argument("--voxel", type=float, default=SurfaceDistanceConfig().voxel, help="vertex spacing, map units")
+    layer.add_argument("--truncation", type=float, default=SurfaceDistanceConfig().truncation, help="largest stored distance, map units")
+    layer.add_argument("--out", help="map file to write (default: MAP)")
+    layer.set_defaults(func=run_add_surface_distance)
 
     prune = commands.add_parser("prune", help="re-threshold a grid map's occupancy (faster renders, slightly lower PSNR)")
     prune.add_argument("map", help="grid map file (rewritten in place unless --out)")
@@ -184,6 +213,33 @@ def run_compare(args: argparse.Namespace) -> int:
         panels.append((f"{views.names[position]} ({psnr(rendering, views.images[position]):.1f} dB)", views.images[position], rendering))
     title = f"{Path(args.map).name} on the {args.split} split: camera image | map rendered at the true pose"
     print(plot_images_beside_renders(panels, Path(args.out), title, render_heading="map at the true pose"))
+    return 0
+
+
+def run_ceiling(args: argparse.Namespace) -> int:
+    if args.candidates < 1:
+        raise LocnerfInputError(f"--candidates {args.candidates}: expected >= 1")
+    device = resolve_device(args.device)
+    radiance_map = load_map(args.map, device)
+    views = _held_out(radiance_map, args.data, args.downscale, args.split, args.stride)
+    training = _held_out(radiance_map, args.data, args.downscale, args.train_split)
+    report = reprojection_ceiling(views, training, radiance_map.render_rays, CeilingConfig(candidates=args.candidates))
+    if args.json:
+        print(json.dumps(report))
+    else:
+        for row in report["views"]:
+            logger.info("%s", "  ".join(f"{key} {value:.3f}" if isinstance(value, float) else f"{key} {value}" for key, value in row.items()))
+        print("  ".join(f"{key} {value:.3f}" if isinstance(value, float) else f"{key} {value}" for key, value in report["summary"].items()))
+    return 0
+
+
+def run_add_surface_distance(args: argparse.Namespace) -> int:
+    radiance_map = load_map(args.map, "cpu")
+    frames = _held_out(radiance_map, args.data, args.downscale, args.split)
+    config = from_flags(SurfaceDistanceConfig, {"voxel": args.voxel, "truncation": args.truncation})
+    radiance_map.surface_distance = surface_distance_of_frames(frames, config)
+    save_map(radiance_map, args.out or args.map)
+    print(json.dumps({"out": args.out or args.map, "vertices": list(radiance_map.surface_distance.shape), **config.model_dump()}))
     return 0
 
 

@@ -33,10 +33,11 @@ import numpy as np
 import torch
 from pydantic import AfterValidator, Field
 
+from locnerf.data.depth_visibility import project_world_points, seen_in_depth
 from locnerf.data.posed_images import PosedImages
 from locnerf.data.seven_scenes import depth_points
 from locnerf.errors import DatasetError
-from locnerf.filter.warp import points_in_cameras, project_camera_points, sample_image
+from locnerf.filter.warp import sample_image
 from locnerf.geometry.se3 import make_pose, pose_inverse
 from locnerf.geometry.so3 import so3_exp
 from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting
@@ -118,25 +119,6 @@ def _reference_points(images: PosedImages, config: CalibrationConfig) -> list[tu
     return references
 
 
-def _project(points: torch.Tensor, T_world_cam: torch.Tensor, camera: PinholeIntrinsics) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Pixels (P, 2) (u, v), depth (P,) and (P,) bool inside ``camera``'s image, in front of it, of homogeneous world points (P, 4)."""
-    local = points_in_cameras(T_world_cam[None], points)[0]
-    pixels, in_front = project_camera_points(local, camera)
-    u, v = pixels[:, 0].detach(), pixels[:, 1].detach()
-    inside = in_front & (u >= 0) & (u <= camera.width - 1) & (v >= 0) & (v <= camera.height - 1)
-    return pixels, -local[:, 2], inside
-
-
-def _visible(images: PosedImages, frame: int, points: torch.Tensor, tolerance: float) -> torch.Tensor:
-    """(P,) bool: the depth image of ``frame`` reads the points' own depth (within ``tolerance`` of it)."""
-    assert images.depths is not None and images.depth_intrinsics is not None
-    camera = images.depth_intrinsics
-    pixels, depth, inside = _project(points, images.T_world_cam[frame].double(), camera)
-    column, row = pixels[:, 0].round().long().clamp(0, camera.width - 1), pixels[:, 1].round().long().clamp(0, camera.height - 1)
-    reading = images.depths[frame].double()[row, column]
-    return inside & (reading > 0) & ((reading - depth).abs() <= tolerance * depth)
-
-
 class _Views:
     """For every reference's points, the frames that see them (by the depth test, independent of the offset)."""
 
@@ -144,7 +126,7 @@ class _Views:
         self.entries: list[tuple[torch.Tensor, list[int], torch.Tensor]] = []
         for frame, points in references:
             frames = [frame + offset for offset in (0, *config.neighbours) if 0 <= frame + offset < len(images)]
-            visible = torch.stack([_visible(images, j, points, config.depth_tolerance) for j in frames])
+            visible = torch.stack([seen_in_depth(images, j, points, config.depth_tolerance) for j in frames])
             keep = visible.sum(0) >= config.min_views
             if keep.any():
                 self.entries.append((points[keep], frames, visible[:, keep]))
@@ -162,7 +144,7 @@ def _residuals(
     for points, frames, visible in views.entries:
         values, masks = [], []
         for row, frame in enumerate(frames):
-            pixels, _, inside = _project(points, T_world_depth[frame] @ T_depth_colour, camera)
+            pixels, _, inside = project_world_points(points, T_world_depth[frame] @ T_depth_colour, camera)
             mask = visible[row] & inside
             masks.append(mask)
             values.append(sample_image(grey[frame], pixels[None], mask[None])[0, :, 0])

@@ -17,7 +17,7 @@ from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
 from locnerf.eval.paper_logs import LoggedRun, LoggedTrial
 from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialConfig, TrialResult, run_trial
-from locnerf.field.protocol import RadianceMap, surface_renderer
+from locnerf.field.protocol import RadianceMap, surface_distance_of, surface_renderer
 from locnerf.filter import Localizer
 from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.geometry import rotation_error_deg, translation_error
@@ -100,6 +100,7 @@ def run_views(views: list[View], radiance_map: RadianceMap, intrinsics: PinholeI
             view.offset,
             surface_renderer(radiance_map),
             view.depth,
+            surface_distance_of(radiance_map),
         )
         for view in views
     ]

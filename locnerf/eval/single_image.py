@@ -26,9 +26,9 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
-from locnerf.field.protocol import RadianceMap, SurfaceRays, surface_renderer
+from locnerf.field.protocol import RadianceMap, SurfaceRays, surface_distance_of, surface_renderer
 from locnerf.filter import Localizer
-from locnerf.filter.depth_measurement import DepthObservation
+from locnerf.filter.depth_measurement import DepthObservation, SurfaceDistanceLookup
 from locnerf.filter.initialization import uniform
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
 from locnerf.render import PinholeIntrinsics, RenderRays
@@ -110,12 +110,14 @@ def run_trial(
     offset: torch.Tensor | None = None,
     render_surface: SurfaceRays | None = None,
     depth: DepthObservation | None = None,
+    surface_distance: SurfaceDistanceLookup | None = None,
 ) -> TrialResult:
     """Localize one image whose true pose is ``truth`` (4, 4); the localizer is re-initialised.
 
     ``offset`` (3,) fixes the start's translation offset (logged starts); drawn when None.
     ``render_surface`` lets a localizer with ``measurement.warp`` weigh a converged cloud by re-projection.
-    ``depth`` is the frame's depth image, used when the localizer's ``measurement.depth`` is set.
+    ``depth`` is the frame's depth image, used when the localizer's ``measurement.depth`` is set;
+    ``surface_distance`` is the map's surface-distance layer (``measurement.depth.likelihood = "surface_distance"``).
     """
     initialize_for_protocol(localizer, truth, config, localizer.generator, offset)
     truth = truth.double().cpu()
@@ -134,7 +136,7 @@ def run_trial(
     rays = 0
     for _ in range(config.updates):
         localizer.predict()
-        rays += localizer.update(image, intrinsics, render_rays, render_surface, depth).rays
+        rays += localizer.update(image, intrinsics, render_rays, render_surface, depth, surface_distance).rays
         estimate = localizer.estimate().pose
         record(estimate, rays, time.perf_counter() - started)
     result.seconds = time.perf_counter() - started
@@ -166,6 +168,7 @@ def run_trials(
             localizer,
             config,
             render_surface=surface_renderer(radiance_map),
+            surface_distance=surface_distance_of(radiance_map),
         )
         logger.info("trial %d: %.4f units, %.2f deg, %.1f s", index, result.translation_error, result.rotation_error_deg, result.seconds)
         results.append(result)

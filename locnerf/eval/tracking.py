@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
 from locnerf.errors import LocnerfInputError
-from locnerf.field.protocol import RadianceMap, surface_renderer
+from locnerf.field.protocol import RadianceMap, surface_distance_of, surface_renderer
 from locnerf.filter import Localizer, SearchRegion
 from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.geometry import make_pose, relative_pose, rotation_error_deg, se3_exp, translation_error
@@ -141,7 +141,7 @@ def run_tracking(
             for repeat in range(updates_per_image):
                 if repeat > 0:
                     localizer.predict()
-                report = localizer.update(image, intrinsics, radiance_map.render_rays, surface_renderer(radiance_map), depth)
+                report = localizer.update(image, intrinsics, radiance_map.render_rays, surface_renderer(radiance_map), depth, surface_distance_of(radiance_map))
                 updates.append(tick)
                 if report.injected:
                     logger.info("t = %.2f s: %d recovery particles injected", float(scenario.stamps[tick]), report.injected)

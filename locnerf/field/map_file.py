@@ -11,7 +11,8 @@ Version 2 layout (big-endian)::
     offset 20  32 bytes  SHA-256 of the payload
     offset 52  payload   torch.save archive (a dict, loaded with ``weights_only=True``):
                          {"format": "locnerf-map", "version": 2, "kind": "grid" | "nerf_pytorch",
-                          "info": MapInfo.to_record(), "state": backend-specific weights and shapes}
+                          "info": MapInfo.to_record(), "state": backend-specific weights and shapes,
+                          optionally "surface_distance": SurfaceDistance.state() (RGB-D maps)}
 
 The checksum is verified before the archive is unpickled, so a damaged or edited payload is
 refused before torch sees it. Version-1 files (the bare archive, no header) are still read; they
@@ -42,6 +43,7 @@ from locnerf.errors import MapFileError
 from locnerf.field.grid_map import GRID_KIND, GridMap
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import NERF_PYTORCH_KIND, NerfPytorchMap
+from locnerf.field.surface_distance import SurfaceDistance
 
 logger = logging.getLogger(__name__)
 
@@ -57,6 +59,7 @@ class SavableMap(Protocol):
 
     kind: str
     info: MapInfo
+    surface_distance: SurfaceDistance | None
 
     def state(self) -> dict[str, Any]: ...
 
@@ -72,6 +75,8 @@ def save_map(radiance_map: SavableMap, path: str | Path) -> Path:
         "info": radiance_map.info.to_record(),
         "state": radiance_map.state(),
     }
+    if radiance_map.surface_distance is not None:
+        archive["surface_distance"] = radiance_map.surface_distance.state()
     buffer = io.BytesIO()
     torch.save(archive, buffer)
     payload = buffer.getvalue()
@@ -153,4 +158,10 @@ def load_map(path: str | Path, device: torch.device | str = "cpu") -> GridMap | 
     """Load a map file onto ``device`` as its backend's RadianceMap."""
     archive = read_map_archive(path)
     info = MapInfo.from_record(archive["info"])
-    return BACKENDS[archive["kind"]].from_state(archive["state"], info, torch.device(device))
+    radiance_map = BACKENDS[archive["kind"]].from_state(archive["state"], info, torch.device(device))
+    if "surface_distance" in archive:
+        try:
+            radiance_map.surface_distance = SurfaceDistance.from_state(archive["surface_distance"]).to(device)
+        except MapFileError as error:
+            raise MapFileError(f"map file {path}: {error}") from None
+    return radiance_map

@@ -13,6 +13,7 @@ translation block changes, by the scale squared.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -112,3 +113,9 @@ def surface_renderer(radiance_map: RadianceMap) -> SurfaceRays | None:
     if render_surface is None or radiance_map.normalization.ndc:
         return None
     return render_surface
+
+
+def surface_distance_of(radiance_map: RadianceMap) -> Callable[[torch.Tensor], torch.Tensor] | None:
+    """The map's surface-distance lookup, points (..., 3) -> distances (...) in map units
+    (:class:`locnerf.field.surface_distance.SurfaceDistance`), when it has one (maps built from depth images); else None."""
+    return getattr(radiance_map, "surface_distance", None)

@@ -8,13 +8,16 @@ import torch
 
 from locnerf.field.map_info import MapInfo
 from locnerf.field.protocol import MapNormalization
+from locnerf.field.surface_distance import SurfaceDistance
 from locnerf.render.camera import PinholeIntrinsics
 
 
 class StoredMap:
-    """Base of the map-file backends: frame, camera, provenance and reference poses from ``info``."""
+    """Base of the map-file backends: frame, camera, provenance and reference poses from ``info``, and the
+    surface-distance layer of maps built from depth images (None for the others)."""
 
     info: MapInfo
+    surface_distance: SurfaceDistance | None = None
 
     @property
     def normalization(self) -> MapNormalization:

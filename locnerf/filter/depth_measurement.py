@@ -21,6 +21,12 @@ Two ways to get d_ij:
   prediction is their camera-frame depth, the observation the depth image at their projection
   (:func:`read_depth_at`: bilinear on a smooth surface, else the nearest pixel). No rendering per particle.
 
+- surface distance (:func:`surface_distance_log_likelihoods`, ``likelihood = "surface_distance"``): each
+  depth pixel's reading becomes a point in the depth camera's frame; placed in the world by each
+  particle's depth-camera pose, its residual is its distance to the nearest surface of the map's
+  surface-distance layer (:mod:`locnerf.field.surface_distance`, built from the training depth images):
+  the likelihood-field model, with no rendering.
+
 The depth camera sits at the particle pose times ``DepthObservation.T_cam_depth`` (its pose in the
 colour camera's frame: 7-Scenes' calibrated offset, :mod:`locnerf.data.colour_camera`; at the particle
 pose itself when None) with its own intrinsics; depth images are never resampled onto the colour grid.
@@ -28,6 +34,7 @@ pose itself when None) with its own intrinsics; depth images are never resampled
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -35,7 +42,10 @@ import torch
 from locnerf.filter.measurement import DepthConfig, draw_uniformly, log_likelihood_from_errors, pixel_coordinates
 from locnerf.filter.warp import SurfaceRays, points_in_cameras, project_camera_points
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
+from locnerf.render.rays import camera_directions_from_pixels, pixel_grid, rays_from_poses_and_pixels
+
+SurfaceDistanceLookup = Callable[[torch.Tensor], torch.Tensor]
+"""Distances (...) to the map's nearest surface of map-frame points (..., 3) (:class:`locnerf.field.surface_distance.SurfaceDistance`)."""
 
 __all__ = [
     "DepthConfig",
@@ -45,6 +55,7 @@ __all__ = [
     "render_depth_image",
     "rendered_depth_log_likelihoods",
     "sample_depth_pixels",
+    "surface_distance_log_likelihoods",
     "warped_depth_log_likelihoods",
 ]
 
@@ -237,3 +248,31 @@ def warped_depth_log_likelihoods(poses: torch.Tensor, points: torch.Tensor, obse
     pixels, in_front = project_camera_points(camera, observation.intrinsics)
     surface = (points[:, 3].to(poses.device) != 0)[None]
     return depth_log_likelihoods(poses, -camera[..., 2], read_depth_at(observation, pixels, in_front & surface, config), config)
+
+
+def surface_distance_log_likelihoods(
+    poses: torch.Tensor, observation: DepthObservation, pixels: torch.Tensor, surface_distance: SurfaceDistanceLookup, config: DepthConfig
+) -> torch.Tensor:
+    """The depth term as the distance of each observed depth point to the map's surface (the likelihood field).
+
+    Pixel q_j with reading D(q_j) is the point p_j = D(q_j) · K⁻¹ q̃_j of the depth camera (OpenGL axes,
+    direction z = -1); particle i places it at ``T_world_depth_i · p_j``, and r_ij is that point's distance
+    to the nearest surface (``surface_distance``), in the family of :func:`depth_log_likelihoods`.
+
+    Args:
+        poses: (N, 4, 4) particle poses ``T_world_cam``.
+        observation: the depth image and its camera.
+        pixels: (M, 2) depth pixels (u, v) of valid readings (:func:`sample_depth_pixels`).
+        surface_distance: the map's lookup, points (..., 3) -> distances (...).
+    Returns:
+        (N,) float64 log-likelihoods.
+    """
+    if pixels.ndim != 2 or pixels.shape[-1] != 2:
+        raise ValueError(f"pixels: expected shape (M, 2) as (u, v), got {tuple(pixels.shape)}")
+    u, v = pixels[:, 0].long().cpu(), pixels[:, 1].long().cpu()
+    readings = observation.depth.cpu()[v, u].to(poses.device, poses.dtype)
+    local = camera_directions_from_pixels(pixels.to(poses.device, poses.dtype), observation.intrinsics) * readings[:, None]  # (M, 3)
+    depth_poses = observation.depth_poses(poses)
+    world = local[None] @ depth_poses[:, :3, :3].transpose(1, 2) + depth_poses[:, None, :3, 3]  # (N, M, 3)
+    distances = surface_distance(world).to(torch.float64)
+    return depth_log_likelihoods(poses, distances, torch.zeros(pixels.shape[0], dtype=torch.float64, device=distances.device), config)

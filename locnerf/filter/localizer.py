@@ -23,8 +23,10 @@ from locnerf.filter import initialization
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
 from locnerf.filter.depth_measurement import (
     DepthObservation,
+    SurfaceDistanceLookup,
     rendered_depth_log_likelihoods,
     sample_depth_pixels,
+    surface_distance_log_likelihoods,
     warped_depth_log_likelihoods,
 )
 from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
@@ -438,6 +440,7 @@ class Localizer:
         render_rays: RenderRays,
         render_surface: SurfaceRays | None = None,
         depth: DepthObservation | None = None,
+        surface_distance: SurfaceDistanceLookup | None = None,
     ) -> MergeReport:
         """One complete update on an image (H, W, 3) in [0, 1]: the keyframe start when one is
         pending, snapshot, render (``measurement.pixels_for`` the particle count, or by re-projection
@@ -447,14 +450,21 @@ class Localizer:
         With ``measurement.depth`` set and a ``depth`` image of the frame, the depth term
         (:mod:`locnerf.filter.depth_measurement`) is added to the colour log-likelihoods: rendered
         from every particle (``render_surface`` needed), or re-projected from the reference render's
-        surface points when the update warps. Without ``measurement.depth``, ``depth`` is ignored;
-        with it but no ``depth``, the update is colour only (warned once)."""
+        surface points when the update warps; with ``measurement.depth.likelihood = "surface_distance"``,
+        looked up in the map's ``surface_distance`` layer instead, on either path. Without ``measurement.depth``,
+        ``depth`` is ignored; with it but no ``depth``, the update is colour only (warned once)."""
         if image.ndim != 3 or image.shape[-1] != 3:
             raise ValueError(f"image: expected shape (H, W, 3), got {tuple(image.shape)}")
         if (image.shape[0], image.shape[1]) != (intrinsics.height, intrinsics.width):
             raise ValueError(f"image size {image.shape[1]}×{image.shape[0]} does not match the intrinsics {intrinsics.width}×{intrinsics.height}")
         depth = self._depth_to_use(depth)
-        if depth is not None and render_surface is None:
+        looked_up = depth is not None and self.config.measurement.depth is not None and self.config.measurement.depth.likelihood == "surface_distance"
+        if looked_up and surface_distance is None:
+            raise ValueError(
+                "measurement.depth.likelihood is 'surface_distance' but the map has no surface-distance layer: build the map from depth images"
+                " (or add one with `locnerf map add-surface-distance`), or use likelihood = 'rendered'"
+            )
+        if depth is not None and render_surface is None and not looked_up:
             raise ValueError(
                 "measurement.depth is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave [measurement.depth] unset for it"
             )
@@ -466,13 +476,18 @@ class Localizer:
         if reference_pose is not None:
             if render_surface is None:
                 raise ValueError("measurement.warp is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave warp unset for it")
-            depth_pixels = depth_config.pixels if depth is not None and depth_config is not None else 0
+            depth_pixels = depth_config.pixels if depth is not None and depth_config is not None and not looked_up else 0
             depth_camera, T_cam_depth = (depth.intrinsics, depth.T_cam_depth) if depth is not None else (None, None)
             reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator, depth_pixels, depth_camera, T_cam_depth)
             log_likelihoods = warp_log_likelihoods(snap.poses, reference, image.to(self.device), intrinsics, config.exponent, config.exposure_gain_range)
             rays = reference.rays
             if depth is not None and depth_config is not None:
-                log_likelihoods = log_likelihoods + warped_depth_log_likelihoods(snap.poses, reference.depth_points, depth, depth_config).to(log_likelihoods)
+                if looked_up:
+                    depth_pixels = sample_depth_pixels(depth, depth_config, self.generator)
+                    term = surface_distance_log_likelihoods(snap.poses, depth, depth_pixels.to(self.device), surface_distance, depth_config)
+                else:
+                    term = warped_depth_log_likelihoods(snap.poses, reference.depth_points, depth, depth_config)
+                log_likelihoods = log_likelihoods + term.to(log_likelihoods)
         else:
             pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
             log_likelihoods = particle_log_likelihoods(
@@ -486,12 +501,14 @@ class Localizer:
                 config.exposure_gain_range,
             )
             rays = len(pixels) * snap.poses.shape[0]
-            if depth is not None and depth_config is not None and render_surface is not None:
-                depth_pixels = sample_depth_pixels(depth, depth_config, self.generator)
-                log_likelihoods = log_likelihoods + rendered_depth_log_likelihoods(
-                    snap.poses, depth, depth_pixels.to(self.device), render_surface, depth_config, config.ray_chunk
-                ).to(log_likelihoods)
-                rays += len(depth_pixels) * snap.poses.shape[0]
+            if depth is not None and depth_config is not None:
+                depth_pixels = sample_depth_pixels(depth, depth_config, self.generator).to(self.device)
+                if looked_up:
+                    term = surface_distance_log_likelihoods(snap.poses, depth, depth_pixels, surface_distance, depth_config)
+                else:
+                    term = rendered_depth_log_likelihoods(snap.poses, depth, depth_pixels, render_surface, depth_config, config.ray_chunk)
+                    rays += len(depth_pixels) * snap.poses.shape[0]
+                log_likelihoods = log_likelihoods + term.to(log_likelihoods)
         warped = reference_pose is not None
         report = self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics), warped)
         return dataclasses.replace(report, rays=rays)

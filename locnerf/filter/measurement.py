@@ -92,6 +92,12 @@ class DepthConfig(BaseModel):
         0.1, gt=0, description="c, map units: a depth residual counts at most this much (robust to holes, depth edges and moving things)."
     )
     exponent: float = Field(4.0, gt=0, description="γ_d: power of the (M / Σ min(r², c²)) depth likelihood.")
+    likelihood: Literal["rendered", "surface_distance"] = Field(
+        "rendered",
+        description="rendered: r is the map's rendered depth minus the reading, along each particle's depth rays (or re-projected once converged);"
+        " surface_distance: r is the distance from the reading's point, placed by each particle's pose, to the nearest surface of the map's"
+        " surface-distance layer (maps built from depth images), a lookup instead of a render.",
+    )
     min_depth: float = Field(0.1, ge=0, description="Readings nearer than this (map units) are invalid.")
     max_depth: float = Field(6.0, gt=0, description="Readings farther than this (map units) are invalid.")
 

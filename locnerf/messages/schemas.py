@@ -247,7 +247,8 @@ class DepthRequest(_Wire):
     )
     measurement: MeasurementConfig = Field(description="The measurement settings (its `depth` must be set).")
     pixels: list[list[float]] = Field(
-        description="(M, 2) depth pixels (u, v) rendered from every pose; re-projection instead draws its points from the reference render."
+        description="(M, 2) depth pixels (u, v) rendered from every pose, or looked up in the surface-distance layer (likelihood surface_distance);"
+        " rendered-depth re-projection instead draws its points from the reference render."
     )
 
     @model_validator(mode="after")

@@ -8,8 +8,13 @@ import time
 import numpy as np
 import torch
 
-from locnerf.field.protocol import RadianceMap, surface_renderer
-from locnerf.filter.depth_measurement import DepthObservation, rendered_depth_log_likelihoods, warped_depth_log_likelihoods
+from locnerf.field.protocol import RadianceMap, surface_distance_of, surface_renderer
+from locnerf.filter.depth_measurement import (
+    DepthObservation,
+    rendered_depth_log_likelihoods,
+    surface_distance_log_likelihoods,
+    warped_depth_log_likelihoods,
+)
 from locnerf.filter.measurement import particle_log_likelihoods
 from locnerf.filter.warp import WarpReference, render_reference, warp_log_likelihoods
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
@@ -35,6 +40,7 @@ class NerfWorker:
         self.map = radiance_map
         self.worker_id = worker_id
         self.render_surface = surface_renderer(radiance_map)
+        self.surface_distance = surface_distance_of(radiance_map)
         self._warned_warp = False
         self._warned_depth = False
 
@@ -109,7 +115,8 @@ class NerfWorker:
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
         part = request.depth
-        depth_pixels = part.measurement.depth.pixels if part is not None and part.measurement.depth is not None else 0
+        rendered_depth = part is not None and part.measurement.depth is not None and part.measurement.depth.likelihood == "rendered"
+        depth_pixels = part.measurement.depth.pixels if rendered_depth else 0
         depth_camera, T_cam_depth = (depth.intrinsics, depth.T_cam_depth) if depth is not None else (None, None)
         generator = torch.Generator().manual_seed(warp.seed)
         return render_reference(self.render_surface, reference_pose, request.intrinsics, warp.measurement, generator, depth_pixels, depth_camera, T_cam_depth)
@@ -127,19 +134,29 @@ class NerfWorker:
             raise RequestError(f"depth part: {error}") from None
 
     def _depth(self, depth: DepthRequest, observation: DepthObservation, poses: torch.Tensor, reference: WarpReference | None) -> torch.Tensor:
-        """The depth term (N,) of an RGB-D frame for poses (N, 4, 4): the reference's depth points
-        re-projected when the colour term was, else the request's depth pixels rendered from every
-        pose; zeros (colour only, warned once) when the map cannot place surfaces."""
+        """The depth term (N,) of an RGB-D frame for poses (N, 4, 4): the request's depth pixels looked up in the
+        map's surface-distance layer when ``likelihood = "surface_distance"`` (a map without one: a bad request);
+        otherwise the reference's depth points re-projected when the colour term was, else the request's depth
+        pixels rendered from every pose; zeros (colour only, warned once) when the map cannot place surfaces."""
+        config = depth.measurement.depth
+        pixels = torch.tensor(depth.pixels, dtype=torch.float32).reshape(-1, 2).to(self.map.device)
+        if config.likelihood == "surface_distance":
+            if self.surface_distance is None:
+                raise RequestError(
+                    "depth part: likelihood 'surface_distance', but this worker's map has no surface-distance layer (build it from depth images)"
+                )
+            try:
+                return surface_distance_log_likelihoods(poses, observation, pixels, self.surface_distance, config)
+            except ValueError as error:
+                raise RequestError(f"depth part: {error}") from None
         if self.render_surface is None:
             if not self._warned_depth:
                 logger.warning("the map cannot place surfaces (an NDC or MLP map): the depth term of RGB-D requests is left out")
                 self._warned_depth = True
             return torch.zeros(poses.shape[0], dtype=torch.float32, device=poses.device)
-        config = depth.measurement.depth
         try:
             if reference is not None:
                 return warped_depth_log_likelihoods(poses, reference.depth_points, observation, config)
-            pixels = torch.tensor(depth.pixels, dtype=torch.float32).reshape(-1, 2).to(self.map.device)
             return rendered_depth_log_likelihoods(poses, observation, pixels, self.render_surface, config, depth.measurement.ray_chunk)
         except ValueError as error:  # a depth part the measurement refuses is a bad request, not a reason to stop
             raise RequestError(f"depth part: {error}") from None

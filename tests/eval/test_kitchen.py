@@ -22,8 +22,10 @@ import torch
 
 from cli.main import main
 from locnerf.data import read_dataset
+from locnerf.data.seven_scenes import depth_points
 from locnerf.field.grid import GridFieldConfig
-from locnerf.field.map_file import save_map
+from locnerf.field.map_file import load_map, save_map
+from locnerf.field.surface_distance import SurfaceDistanceConfig
 from locnerf.train import BuildConfig, build_map, psnr
 from tests.conftest import REPO_ROOT, SHARED_DATA
 
@@ -54,6 +56,12 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> dict[str, An
     return json.loads(capsys.readouterr().out)
 
 
+def training_depth_points(stride: str) -> torch.Tensor:
+    """(P, 3) map-frame points of every ``stride``-th training frame's depth readings at the tiny maps' size."""
+    frames = read_dataset(KITCHEN, split="train", downscale=int(DOWNSCALE), stride=int(stride))
+    return depth_points(frames.depths, frames.depth_poses(), frames.depth_intrinsics)
+
+
 def black_image_psnr(split: str, stride: int) -> float:
     """Mean PSNR of an all-black render against the split's views (the floor a map must clear)."""
     views = read_dataset(KITCHEN, split=split, downscale=int(DOWNSCALE), stride=stride)
@@ -70,6 +78,9 @@ def test_map_build_on_the_training_split_reports_held_out_scores(tmp_path: Path,
     assert report["out"] == str(out) and out.stat().st_size > 1000
     assert report["steps"] == 20 and report["depth_supervised"] and report["config"]["field"]["voxels"] == 16**3
     assert report["heldout_views"] == 400
+    layer = load_map(out).surface_distance  # the depth readings' surface-distance layer, built beside the grid
+    assert layer is not None and layer.voxel == SurfaceDistanceConfig().voxel
+    assert float(layer(training_depth_points("120")).median()) < layer.voxel  # when written: 0.68 voxel (sparse 40×30 frames)
     assert math.isfinite(report["heldout_psnr"]) and report["heldout_psnr"] > black_image_psnr("test", 1) + 3.0, report["heldout_psnr"]
     assert 0.0 < report["heldout_ssim"] <= 1.0
 
@@ -80,6 +91,33 @@ def test_map_eval_on_the_test_split_beats_a_black_image(tiny_kitchen_map: Path, 
     assert set(scores) == {"psnr", "ssim", "views"} and scores["views"] == 10
     assert math.isfinite(scores["psnr"]) and scores["psnr"] > black_image_psnr("test", 40) + 6.0, scores
     assert 0.0 < scores["ssim"] <= 1.0
+
+
+def test_map_add_surface_distance_writes_a_layer_from_the_training_depth(tiny_kitchen_map: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``locnerf map add-surface-distance`` at 5 cm vertices: a map whose layer reads little at the training frames' depth
+    points (when written: a median 0.43 voxel, trilinear between vertices up to √3/2 voxel away) and the truncation far
+    from every surface; the input map is left as it was."""
+    out = tmp_path / "layered.locmap"
+    argv = ["map", "add-surface-distance", str(tiny_kitchen_map), "--data", str(KITCHEN), "--downscale", DOWNSCALE, "--voxel", "0.05", "--out", str(out)]
+    report = run_cli(argv, capsys)
+    assert report["out"] == str(out) and report["voxel"] == 0.05 and report["truncation"] == SurfaceDistanceConfig().truncation
+    layer = load_map(out).surface_distance
+    assert layer is not None and list(layer.shape) == report["vertices"]
+    assert float(layer(training_depth_points("60")).median()) < 0.6 * layer.voxel
+    assert float(layer(torch.tensor([[100.0, 0.0, 0.0]]))) == pytest.approx(layer.truncation)
+    assert load_map(tiny_kitchen_map).surface_distance is not None  # built with one; not rewritten
+
+
+def test_map_ceiling_reports_each_view_and_the_means(tiny_kitchen_map: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``locnerf map ceiling`` on two test frames against the tiny map's 600 training frames (5 nearest each):
+    every figure of a view present and finite where it has points, coverage a fraction, means over the views."""
+    argv = ["map", "ceiling", str(tiny_kitchen_map), "--data", str(KITCHEN), "--split", "test", "--stride", "200", "--downscale", DOWNSCALE]
+    report = run_cli(argv + ["--candidates", "5", "--device", "cpu", "--json"], capsys)
+    assert [row["name"] for row in report["views"]] == ["seq-02/frame-000600", "seq-02/frame-000800"]
+    for row in report["views"]:
+        assert 0.0 < row["coverage"] <= 1.0 and math.isfinite(row["ceiling_psnr"]) and math.isfinite(row["map_psnr"]), row
+    summary = report["summary"]
+    assert summary["views"] == 2 and summary["coverage"] == pytest.approx(sum(row["coverage"] for row in report["views"]) / 2)
 
 
 @pytest.mark.parametrize(

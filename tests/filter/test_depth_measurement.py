@@ -8,6 +8,8 @@ import pytest
 import torch
 
 from locnerf.config import preset
+from locnerf.data.seven_scenes import depth_points
+from locnerf.field.surface_distance import SurfaceDistance, SurfaceDistanceConfig
 from locnerf.filter import Localizer
 from locnerf.filter.depth_measurement import (
     DepthConfig,
@@ -16,6 +18,7 @@ from locnerf.filter.depth_measurement import (
     render_depth_image,
     rendered_depth_log_likelihoods,
     sample_depth_pixels,
+    surface_distance_log_likelihoods,
     warped_depth_log_likelihoods,
 )
 from locnerf.filter.measurement import WarpConfig
@@ -247,3 +250,65 @@ def test_localizer_adds_the_depth_term(world: ProceduralWorld) -> None:
     warping = _localizer(DepthConfig(pixels=24), WarpConfig(max_spread=0.05, pixels=40), particles=200)
     warping.initialize_gaussian(truth, torch.diag(torch.tensor([1e-5] * 3 + [1e-5] * 3, dtype=torch.float64)))
     assert warping.update(image, COLOUR, world.render_rays, world.render_surface, observation).rays == 32 * 24  # the reference at stride 2
+
+
+@pytest.fixture(scope="module")
+def surface_layer(world: ProceduralWorld) -> SurfaceDistance:
+    """The layer of exact depth images seen from the true pose and eight poses around it (2 cm vertices)."""
+    truth = true_pose(world)
+    poses = torch.cat((truth[None], poses_around(truth, 8, math.radians(8.0), 0.3, torch.Generator().manual_seed(9))))
+    depths = torch.stack([_depth_image(world, pose, FINE_DEPTH).depth for pose in poses])
+    return SurfaceDistance.from_points(depth_points(depths, poses, FINE_DEPTH), SurfaceDistanceConfig(voxel=0.02, truncation=0.06))
+
+
+def test_surface_distance_likelihood_matches_a_point_by_point_loop(world: ProceduralWorld, surface_layer: SurfaceDistance, generator: torch.Generator) -> None:
+    """Batched placement of the depth points against one particle and one pixel at a time in float64
+    (p = D(q) · K⁻¹q̃, placed by the depth camera's pose, its distance looked up alone), with a depth camera offset."""
+    offset = make_pose(so3_exp(torch.tensor([0.02, -0.01, 0.015], dtype=torch.float64)), torch.tensor([-0.03, 0.016, 0.004], dtype=torch.float64))
+    truth = true_pose(world)
+    observation = DepthObservation(_depth_image(world, truth @ offset, FINE_DEPTH).depth, FINE_DEPTH, offset)
+    config = DepthConfig(pixels=30, truncation=0.05, exponent=8.0, likelihood="surface_distance")
+    poses = torch.cat((truth[None], poses_around(truth, 6, math.radians(2.0), 0.05, generator)))
+    pixels = sample_depth_pixels(observation, config, generator)
+    fast = surface_distance_log_likelihoods(poses, observation, pixels, surface_layer, config)
+    slow = []
+    for pose in poses:
+        depth_pose = pose @ offset
+        residuals = []
+        for u, v in pixels.tolist():
+            reading = float(observation.depth[int(v), int(u)])
+            x, y = (u - FINE_DEPTH.cx) / FINE_DEPTH.fx, -(v - FINE_DEPTH.cy) / FINE_DEPTH.fy
+            point = depth_pose[:3, :3] @ torch.tensor([x, y, -1.0], dtype=torch.float64) * reading + depth_pose[:3, 3]
+            residuals.append(float(surface_layer(point[None])[0]))
+        slow.append(_naive_depth_log_likelihood(residuals, [0.0] * len(residuals), config))
+    torch.testing.assert_close(fast, torch.tensor(slow, dtype=torch.float64), rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(fast, surface_distance_log_likelihoods(poses.float(), observation, pixels, surface_layer, config), rtol=1e-4, atol=1e-3)
+
+
+def test_the_true_pose_is_the_most_likely_by_surface_distance(world: ProceduralWorld, surface_layer: SurfaceDistance, generator: torch.Generator) -> None:
+    """A depth image rendered at the truth: the truth scores highest among 40 poses 1° and 3 cm around it."""
+    truth = true_pose(world)
+    observation = _depth_image(world, truth, FINE_DEPTH)
+    config = DepthConfig(pixels=128, truncation=0.05, likelihood="surface_distance")
+    poses = torch.cat((truth[None], poses_around(truth, 40, math.radians(1.0), 0.03, generator)))
+    scores = surface_distance_log_likelihoods(poses, observation, sample_depth_pixels(observation, config, generator), surface_layer, config)
+    assert int(scores.argmax()) == 0
+
+
+def test_localizer_looks_depth_up_in_the_surface_distance_layer(world: ProceduralWorld, surface_layer: SurfaceDistance) -> None:
+    """``likelihood = "surface_distance"``: no depth rays are rendered (N × M colour rays; the reference alone when
+    warping), no surface renderer is needed for it, and a map without the layer is refused naming the fix."""
+    truth = true_pose(world)
+    image = world.render_image(truth.float(), COLOUR)
+    observation = _depth_image(world, truth)
+    spread = torch.diag(torch.tensor([1e-3] * 3 + [1e-2] * 3, dtype=torch.float64))
+    localizer = _localizer(DepthConfig(pixels=24, likelihood="surface_distance"))
+    localizer.initialize_gaussian(truth, spread)
+    assert localizer.update(image, COLOUR, world.render_rays, None, observation, surface_layer).rays == 50 * 16
+    with pytest.raises(ValueError, match=r"likelihood is 'surface_distance' but the map has no surface-distance layer"):
+        localizer.update(image, COLOUR, world.render_rays, world.render_surface, observation)
+    warping = _localizer(DepthConfig(pixels=24, likelihood="surface_distance"), WarpConfig(max_spread=0.05, pixels=40), particles=200)
+    warping.initialize_gaussian(truth, torch.diag(torch.tensor([1e-5] * 3 + [1e-5] * 3, dtype=torch.float64)))
+    assert (
+        warping.update(image, COLOUR, world.render_rays, world.render_surface, observation, surface_layer).rays == 32 * 24
+    )  # the colour reference at stride 2, no depth points

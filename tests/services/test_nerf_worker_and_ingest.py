@@ -13,8 +13,18 @@ import torch
 
 from locnerf.data.detect import read_dataset
 from locnerf.data.posed_images import PosedImages
+from locnerf.data.seven_scenes import depth_points
 from locnerf.field.protocol import MapNormalization
-from locnerf.filter.depth_measurement import DepthConfig, render_depth_image, rendered_depth_log_likelihoods, sample_depth_pixels, warped_depth_log_likelihoods
+from locnerf.field.surface_distance import SurfaceDistance, SurfaceDistanceConfig
+from locnerf.filter.depth_measurement import (
+    DepthConfig,
+    DepthObservation,
+    render_depth_image,
+    rendered_depth_log_likelihoods,
+    sample_depth_pixels,
+    surface_distance_log_likelihoods,
+    warped_depth_log_likelihoods,
+)
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels
 from locnerf.filter.warp import render_reference, warp_log_likelihoods
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
@@ -285,6 +295,38 @@ def test_worker_warps_as_the_in_process_localizer_does(world, generator):
         WarpRequest.model_validate(request.warp.model_dump() | {"measurement": {}})
 
 
+@dataclasses.dataclass(frozen=True)
+class RgbdRequests:
+    """An RGB-D update of :func:`_warp_request`'s particles: the request, its rendering and re-projection forms with one
+    depth part, and what they were made from."""
+
+    request: UpdateRequest
+    rendered: UpdateRequest
+    warped: UpdateRequest
+    poses: torch.Tensor
+    image: torch.Tensor
+    measurement: MeasurementConfig
+    truth: torch.Tensor
+    observation: DepthObservation
+    pixels: torch.Tensor
+
+
+def _rgbd_requests(world: ProceduralWorld, generator: torch.Generator, depth_config: DepthConfig, offset: list[list[float]] | None = None) -> RgbdRequests:
+    """The depth image a 40×30 depth camera (at the reference pose times ``offset``) sees, as the depth part of the re-projection request."""
+    camera = PinholeIntrinsics.from_fov(40, 30, math.radians(60))
+    request, poses, image, measurement = _warp_request(world, generator)
+    truth = torch.tensor(request.warp.reference_pose, dtype=torch.float64)
+    depth_pose = truth if offset is None else truth @ torch.tensor(offset, dtype=torch.float64)
+    millimetres = depth_millimetres(render_depth_image(world.render_surface, depth_pose, camera).depth)
+    observation = depth_observation(millimetres, camera, scale=1.0, T_cam_depth=offset)
+    measurement = measurement.model_copy(update={"depth": depth_config})
+    pixels = sample_depth_pixels(observation, depth_config, generator)
+    depth_part = DepthRequest(image=millimetres.astype("<u2").tobytes(), intrinsics=camera, T_cam_depth=offset, measurement=measurement, pixels=pixels.tolist())
+    rendered = request.model_copy(update={"warp": None, "depth": depth_part})
+    warped = request.model_copy(update={"warp": request.warp.model_copy(update={"measurement": measurement}), "depth": depth_part})
+    return RgbdRequests(request, rendered, warped, poses, image, measurement, truth, observation, pixels)
+
+
 DEPTH_OFFSET = make_pose(so3_exp(torch.tensor([0.17, 0.0, 0.05], dtype=torch.float64)), torch.tensor([0.03, 0.01, -0.02], dtype=torch.float64)).tolist()
 """A depth camera turned 10 degrees and a few centimetres away from the colour camera (an exaggerated offset)."""
 
@@ -295,50 +337,67 @@ def test_worker_adds_the_depth_term_of_an_rgbd_request_as_the_localizer_does(wor
     re-projected from the reference render's depth points (the same seed, so the same on every shard),
     with the depth camera where the request's T_cam_depth puts it; the request decodes to itself; a map
     without surfaces leaves the term out; bad depth parts are refused."""
-    camera = PinholeIntrinsics.from_fov(40, 30, math.radians(60))
     depth_config = DepthConfig(pixels=20)
-    request, poses, image, measurement = _warp_request(world, generator)
-    truth = torch.tensor(request.warp.reference_pose, dtype=torch.float64)
-    depth_pose = truth if offset is None else truth @ torch.tensor(offset, dtype=torch.float64)
-    millimetres = depth_millimetres(render_depth_image(world.render_surface, depth_pose, camera).depth)
-    observation = depth_observation(millimetres, camera, scale=1.0, T_cam_depth=offset)
-    measurement = measurement.model_copy(update={"depth": depth_config})
-    depth_pixels = sample_depth_pixels(observation, depth_config, generator)
-    depth_part = DepthRequest(
-        image=millimetres.astype("<u2").tobytes(), intrinsics=camera, T_cam_depth=offset, measurement=measurement, pixels=depth_pixels.tolist()
-    )
-    rendered = request.model_copy(update={"warp": None, "depth": depth_part})
-    warped = request.model_copy(update={"warp": request.warp.model_copy(update={"measurement": measurement}), "depth": depth_part})
-    for message in (rendered, warped):
+    case = _rgbd_requests(world, generator, depth_config, offset)
+    poses, observation, depth_part = case.poses, case.observation, case.rendered.depth
+    for message in (case.rendered, case.warped):
         assert decode(encode(message), UpdateRequest) == message
 
-    colour = particle_log_likelihoods(poses, torch.tensor(request.pixels), torch.tensor(request.observed_rgb), world.default_intrinsics, world.render_rays)
-    expected = colour.double() + rendered_depth_log_likelihoods(poses, observation, depth_pixels, world.render_surface, depth_config).double()
-    torch.testing.assert_close(torch.tensor(NerfWorker(world, "w").handle(rendered).log_likelihoods, dtype=torch.float64), expected)
+    colour = particle_log_likelihoods(
+        poses, torch.tensor(case.request.pixels), torch.tensor(case.request.observed_rgb), world.default_intrinsics, world.render_rays
+    )
+    expected = colour.double() + rendered_depth_log_likelihoods(poses, observation, case.pixels, world.render_surface, depth_config).double()
+    torch.testing.assert_close(torch.tensor(NerfWorker(world, "w").handle(case.rendered).log_likelihoods, dtype=torch.float64), expected)
 
+    generator = torch.Generator().manual_seed(7)
     reference = render_reference(
         world.render_surface,
-        truth,
+        case.truth,
         world.default_intrinsics,
-        measurement,
-        torch.Generator().manual_seed(7),
+        case.measurement,
+        generator,
         depth_config.pixels,
-        camera,
+        observation.intrinsics,
         observation.T_cam_depth,
     )
     assert reference.depth_points.shape == (depth_config.pixels, 4)
-    expected = warp_log_likelihoods(poses, reference, image, world.default_intrinsics).double()
+    expected = warp_log_likelihoods(poses, reference, case.image, world.default_intrinsics).double()
     expected = expected + warped_depth_log_likelihoods(poses, reference.depth_points, observation, depth_config).double()
-    torch.testing.assert_close(torch.tensor(NerfWorker(world, "w").handle(warped).log_likelihoods, dtype=torch.float64), expected)
+    torch.testing.assert_close(torch.tensor(NerfWorker(world, "w").handle(case.warped).log_likelihoods, dtype=torch.float64), expected)
 
     class RenderOnly:  # the world without its surface renderer, as an MLP or NDC map
         def __init__(self) -> None:
             self.render_rays, self.device, self.normalization = world.render_rays, world.device, world.normalization
 
-    torch.testing.assert_close(torch.tensor(NerfWorker(RenderOnly(), "w").handle(rendered).log_likelihoods, dtype=torch.float64), colour.double())
+    torch.testing.assert_close(torch.tensor(NerfWorker(RenderOnly(), "w").handle(case.rendered).log_likelihoods, dtype=torch.float64), colour.double())
     with pytest.raises(ValueError, match=r"depth request: image of 10 bytes, expected 2400 for 40×30 uint16"):
         DepthRequest.model_validate(depth_part.model_dump() | {"image": bytes(10)})
     with pytest.raises(ValueError, match=r"expected 1 or more pixels \(u, v\) inside the 40×30 depth image"):
         DepthRequest.model_validate(depth_part.model_dump() | {"pixels": [[40.0, 0.0]]})
     with pytest.raises(ValueError, match=r"measurement.depth is None"):
         DepthRequest.model_validate(depth_part.model_dump() | {"measurement": {}})
+
+
+def test_worker_looks_the_depth_term_up_in_its_maps_surface_distance_layer(world, generator):
+    """``likelihood = "surface_distance"``: the worker adds the same term as the localizer computes in process, on the
+    rendering and the re-projection path alike (the request's depth pixels, never the reference's depth points);
+    its map without a layer refuses the request as a bad request naming why."""
+    depth_config = DepthConfig(pixels=20, likelihood="surface_distance")
+    case = _rgbd_requests(world, generator, depth_config)
+    request, poses, observation, truth = case.request, case.poses, case.observation, case.truth
+    layer = SurfaceDistance.from_points(depth_points(observation.depth[None], truth[None], observation.intrinsics), SurfaceDistanceConfig())
+
+    class WorldWithLayer:  # the world as a map built from depth images
+        def __init__(self) -> None:
+            self.render_rays, self.render_surface, self.device, self.normalization = world.render_rays, world.render_surface, world.device, world.normalization
+            self.surface_distance = layer
+
+    worker = NerfWorker(WorldWithLayer(), "w")
+    depth_term = surface_distance_log_likelihoods(poses, observation, case.pixels, layer, depth_config).double()
+    colour = particle_log_likelihoods(poses, torch.tensor(request.pixels), torch.tensor(request.observed_rgb), world.default_intrinsics, world.render_rays)
+    torch.testing.assert_close(torch.tensor(worker.handle(case.rendered).log_likelihoods, dtype=torch.float64), colour.double() + depth_term)
+    reference = render_reference(world.render_surface, truth, world.default_intrinsics, case.measurement, torch.Generator().manual_seed(7))
+    warped_colour = warp_log_likelihoods(poses, reference, case.image, world.default_intrinsics).double()
+    torch.testing.assert_close(torch.tensor(worker.handle(case.warped).log_likelihoods, dtype=torch.float64), warped_colour + depth_term)
+    with pytest.raises(RequestError, match="this worker's map has no surface-distance layer"):
+        NerfWorker(world, "w").handle(case.rendered)
