@@ -126,8 +126,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.set_defaults(func=run_info)
 
 
-def _held_out(radiance_map, data: str, downscale: int | None, split: str = "test", stride: int = 1):
-    """The views of ``split`` on the camera the map was built for (:func:`on_map_camera`)."""
+def _split_on_map_camera(radiance_map, data: str, downscale: int | None, split: str = "test", stride: int = 1):
+    """The frames of ``split`` (held-out views, or the training frames) on the camera the map was built for (:func:`on_map_camera`)."""
     return on_map_camera(read_dataset(data, split=split, downscale=downscale, skip_missing=True, stride=stride), radiance_map)
 
 
@@ -152,7 +152,7 @@ def run_build(args: argparse.Namespace) -> int:
         }
         config = from_flags(BuildConfig, values, {"use_depth": "--no-depth", "calibrate_colour_camera": "--no-colour-calibration"})
         radiance_map = build_map(train, config, device=device, progress=True)
-    held_out = _held_out(radiance_map, args.data, args.downscale)
+    held_out = _split_on_map_camera(radiance_map, args.data, args.downscale)
     scores = evaluate_map(radiance_map.render_rays, held_out, device)
     radiance_map.metadata.update(heldout_psnr=round(scores["psnr"], 3), heldout_ssim=round(scores["ssim"], 4), heldout_views=scores["views"])
     save_map(radiance_map, args.out)
@@ -165,7 +165,9 @@ def run_eval(args: argparse.Namespace) -> int:
     if (args.data is None) == (args.data_option is None):
         raise LocnerfInputError("map eval: name the data set once, as DATA or --data DATA")
     radiance_map = load_map(args.map, device)
-    scores = evaluate_map(radiance_map.render_rays, _held_out(radiance_map, args.data or args.data_option, args.downscale, args.split, args.stride), device)
+    scores = evaluate_map(
+        radiance_map.render_rays, _split_on_map_camera(radiance_map, args.data or args.data_option, args.downscale, args.split, args.stride), device
+    )
     if args.json:
         print(json.dumps(scores))
     else:
@@ -206,7 +208,7 @@ def run_compare(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--views {args.views}: expected >= 1")
     device = resolve_device(args.device)
     radiance_map = load_map(args.map, device)
-    views = _held_out(radiance_map, args.data, args.downscale, args.split)
+    views = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split)
     panels = []
     for position in np.linspace(0, len(views) - 1, args.views).round().astype(int).tolist():
         rendering = render_image(radiance_map.render_rays, views.T_world_cam[position].to(device, torch.float32), views.intrinsics).cpu()
@@ -221,8 +223,8 @@ def run_ceiling(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--candidates {args.candidates}: expected >= 1")
     device = resolve_device(args.device)
     radiance_map = load_map(args.map, device)
-    views = _held_out(radiance_map, args.data, args.downscale, args.split, args.stride)
-    training = _held_out(radiance_map, args.data, args.downscale, args.train_split)
+    views = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split, args.stride)
+    training = _split_on_map_camera(radiance_map, args.data, args.downscale, args.train_split)
     report = reprojection_ceiling(views, training, radiance_map.render_rays, CeilingConfig(candidates=args.candidates))
     if args.json:
         print(json.dumps(report))
@@ -235,7 +237,7 @@ def run_ceiling(args: argparse.Namespace) -> int:
 
 def run_add_surface_distance(args: argparse.Namespace) -> int:
     radiance_map = load_map(args.map, "cpu")
-    frames = _held_out(radiance_map, args.data, args.downscale, args.split)
+    frames = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split)
     config = from_flags(SurfaceDistanceConfig, {"voxel": args.voxel, "truncation": args.truncation})
     radiance_map.surface_distance = surface_distance_of_frames(frames, config)
     save_map(radiance_map, args.out or args.map)

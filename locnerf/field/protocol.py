@@ -13,7 +13,6 @@ translation block changes, by the scale squared.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -21,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.geometry.se3 import pose_inverse
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.render.image import SurfaceRays
+from locnerf.render.image import SurfaceDistanceLookup, SurfaceRays
 
 
 def _translation_scaled(poses: torch.Tensor, factor: float) -> torch.Tensor:
@@ -115,7 +114,7 @@ def surface_renderer(radiance_map: RadianceMap) -> SurfaceRays | None:
     return render_surface
 
 
-def surface_distance_of(radiance_map: RadianceMap) -> Callable[[torch.Tensor], torch.Tensor] | None:
+def surface_distance_of(radiance_map: RadianceMap) -> SurfaceDistanceLookup | None:
     """The map's surface-distance lookup, points (..., 3) -> distances (...) in map units
     (:class:`locnerf.field.surface_distance.SurfaceDistance`), when it has one (maps built from depth images); else None."""
     return getattr(radiance_map, "surface_distance", None)

@@ -73,6 +73,8 @@ class SurfaceDistance:
         self.truncation = float(truncation)
         self.codes = codes
         self._volume = (codes.float() * (self.truncation / LEVELS))[None, None]
+        nz, ny, nx = codes.shape
+        self._extent = torch.tensor([nx - 1, ny - 1, nz - 1], dtype=torch.float32, device=codes.device) * self.voxel
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -138,9 +140,8 @@ class SurfaceDistance:
     def __call__(self, points: torch.Tensor) -> torch.Tensor:
         """Distances (...) to the nearest surface of map-frame points (..., 3), trilinear, ``truncation`` outside the grid."""
         flat = points.reshape(-1, 3).to(self.origin.device, torch.float32)
-        extent = (torch.tensor(self.shape, device=flat.device, dtype=torch.float32) - 1) * self.voxel
-        normalised = (flat - self.origin) / extent * 2 - 1
-        sampled = F.grid_sample(self._volume.to(flat.device), normalised[None, None, None], mode="bilinear", align_corners=True)
+        normalised = (flat - self.origin) / self._extent * 2 - 1
+        sampled = F.grid_sample(self._volume, normalised[None, None, None], mode="bilinear", align_corners=True)
         distances = sampled.reshape(-1)
         inside = ((normalised >= -1) & (normalised <= 1)).all(dim=-1)
         return torch.where(inside, distances, torch.full_like(distances, self.truncation)).reshape(points.shape[:-1]).to(points.dtype)

@@ -34,7 +34,6 @@ pose itself when None) with its own intrinsics; depth images are never resampled
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -42,14 +41,13 @@ import torch
 from locnerf.filter.measurement import DepthConfig, draw_uniformly, log_likelihood_from_errors, pixel_coordinates
 from locnerf.filter.warp import SurfaceRays, points_in_cameras, project_camera_points
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import SurfaceDistanceLookup
 from locnerf.render.rays import camera_directions_from_pixels, pixel_grid, rays_from_poses_and_pixels
-
-SurfaceDistanceLookup = Callable[[torch.Tensor], torch.Tensor]
-"""Distances (...) to the map's nearest surface of map-frame points (..., 3) (:class:`locnerf.field.surface_distance.SurfaceDistance`)."""
 
 __all__ = [
     "DepthConfig",
     "DepthObservation",
+    "SurfaceDistanceLookup",
     "depth_log_likelihoods",
     "read_depth_at",
     "render_depth_image",
@@ -269,8 +267,8 @@ def surface_distance_log_likelihoods(
     """
     if pixels.ndim != 2 or pixels.shape[-1] != 2:
         raise ValueError(f"pixels: expected shape (M, 2) as (u, v), got {tuple(pixels.shape)}")
-    u, v = pixels[:, 0].long().cpu(), pixels[:, 1].long().cpu()
-    readings = observation.depth.cpu()[v, u].to(poses.device, poses.dtype)
+    index = pixels.long().to(observation.depth.device)
+    readings = observation.depth[index[:, 1], index[:, 0]].to(poses.device, poses.dtype)
     local = camera_directions_from_pixels(pixels.to(poses.device, poses.dtype), observation.intrinsics) * readings[:, None]  # (M, 3)
     depth_poses = observation.depth_poses(poses)
     world = local[None] @ depth_poses[:, :3, :3].transpose(1, 2) + depth_poses[:, None, :3, 3]  # (N, M, 3)

@@ -46,7 +46,7 @@ from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighte
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
 from locnerf.filter.tempering import TemperingConfig, tempered, tempering_exponent
-from locnerf.filter.warp import SurfaceRays, render_reference, warp_log_likelihoods, warp_reference_pose
+from locnerf.filter.warp import SurfaceRays, WarpReference, render_reference, warp_log_likelihoods, warp_reference_pose
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -458,7 +458,8 @@ class Localizer:
         if (image.shape[0], image.shape[1]) != (intrinsics.height, intrinsics.width):
             raise ValueError(f"image size {image.shape[1]}×{image.shape[0]} does not match the intrinsics {intrinsics.width}×{intrinsics.height}")
         depth = self._depth_to_use(depth)
-        looked_up = depth is not None and self.config.measurement.depth is not None and self.config.measurement.depth.likelihood == "surface_distance"
+        config = self.config.measurement
+        looked_up = depth is not None and config.depth.likelihood == "surface_distance"  # config.depth is set whenever depth is
         if looked_up and surface_distance is None:
             raise ValueError(
                 "measurement.depth.likelihood is 'surface_distance' but the map has no surface-distance layer: build the map from depth images"
@@ -470,24 +471,16 @@ class Localizer:
             )
         self.seed_from_image(image, intrinsics)
         snap = self.snapshot()
-        config = self.config.measurement
-        depth_config = config.depth  # not None whenever depth is (_depth_to_use)
         reference_pose = self.warp_reference(snap)
+        reference = None
         if reference_pose is not None:
             if render_surface is None:
                 raise ValueError("measurement.warp is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave warp unset for it")
-            depth_pixels = depth_config.pixels if depth is not None and depth_config is not None and not looked_up else 0
+            depth_pixels = config.depth.pixels if depth is not None and not looked_up else 0
             depth_camera, T_cam_depth = (depth.intrinsics, depth.T_cam_depth) if depth is not None else (None, None)
             reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator, depth_pixels, depth_camera, T_cam_depth)
             log_likelihoods = warp_log_likelihoods(snap.poses, reference, image.to(self.device), intrinsics, config.exponent, config.exposure_gain_range)
             rays = reference.rays
-            if depth is not None and depth_config is not None:
-                if looked_up:
-                    depth_pixels = sample_depth_pixels(depth, depth_config, self.generator)
-                    term = surface_distance_log_likelihoods(snap.poses, depth, depth_pixels.to(self.device), surface_distance, depth_config)
-                else:
-                    term = warped_depth_log_likelihoods(snap.poses, reference.depth_points, depth, depth_config)
-                log_likelihoods = log_likelihoods + term.to(log_likelihoods)
         else:
             pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
             log_likelihoods = particle_log_likelihoods(
@@ -501,17 +494,32 @@ class Localizer:
                 config.exposure_gain_range,
             )
             rays = len(pixels) * snap.poses.shape[0]
-            if depth is not None and depth_config is not None:
-                depth_pixels = sample_depth_pixels(depth, depth_config, self.generator).to(self.device)
-                if looked_up:
-                    term = surface_distance_log_likelihoods(snap.poses, depth, depth_pixels, surface_distance, depth_config)
-                else:
-                    term = rendered_depth_log_likelihoods(snap.poses, depth, depth_pixels, render_surface, depth_config, config.ray_chunk)
-                    rays += len(depth_pixels) * snap.poses.shape[0]
-                log_likelihoods = log_likelihoods + term.to(log_likelihoods)
+        if depth is not None:
+            term, depth_rays = self._depth_term(snap.poses, depth, reference, render_surface, surface_distance)
+            log_likelihoods, rays = log_likelihoods + term.to(log_likelihoods), rays + depth_rays
         warped = reference_pose is not None
         report = self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics), warped)
         return dataclasses.replace(report, rays=rays)
+
+    def _depth_term(
+        self,
+        poses: torch.Tensor,
+        depth: DepthObservation,
+        reference: WarpReference | None,
+        render_surface: SurfaceRays | None,
+        surface_distance: SurfaceDistanceLookup | None,
+    ) -> tuple[torch.Tensor, int]:
+        """The depth term (N,) of poses (N, 4, 4) and the rays it rendered: looked up in the surface-distance layer
+        (``likelihood = "surface_distance"``), else re-projected from the ``reference`` of a warped update, else
+        rendered from every pose (checked by :meth:`update`: the map offers what the setting needs)."""
+        config = self.config.measurement
+        if config.depth.likelihood == "surface_distance":
+            pixels = sample_depth_pixels(depth, config.depth, self.generator).to(self.device)
+            return surface_distance_log_likelihoods(poses, depth, pixels, surface_distance, config.depth), 0
+        if reference is not None:
+            return warped_depth_log_likelihoods(poses, reference.depth_points, depth, config.depth), 0
+        pixels = sample_depth_pixels(depth, config.depth, self.generator).to(self.device)
+        return rendered_depth_log_likelihoods(poses, depth, pixels, render_surface, config.depth, config.ray_chunk), len(pixels) * poses.shape[0]
 
     def _depth_to_use(self, depth: DepthObservation | None) -> DepthObservation | None:
         """``depth`` when ``measurement.depth`` is set (warned once when the frame has none), else None."""

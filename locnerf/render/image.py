@@ -16,6 +16,10 @@ SurfaceRays = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.T
 """Rays' colours and where they meet the scene: origins (R, 3), directions (R, 3), map frame ->
 rgb (R, 3), expected surface point (R, 3) and opacity (R,) in [0, 1]."""
 
+SurfaceDistanceLookup = Callable[[torch.Tensor], torch.Tensor]
+"""Distances (...) from map-frame points (..., 3) to the nearest surface a map's depth readings measured
+(:class:`locnerf.field.surface_distance.SurfaceDistance`)."""
+
 
 def render_image(
     render_rays: RenderRays,
