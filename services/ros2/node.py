@@ -96,8 +96,9 @@ class Ros2Node:
         """Serve ``name``: ``handler(key, request CDR, request attachment or None)`` returns the
         response CDR (None: no reply); the reply's attachment carries the request's sequence number
         and GID, as rmw_zenoh's service server does, so the client can match it. The queryable
-        matches any type name and hash so that the handler can count a mismatch. Returns the fully
-        qualified name."""
+        matches any type name and hash so that the handler can count a mismatch, and is declared
+        complete as rmw_zenoh's are: its clients query with target ALL_COMPLETE, which reaches no
+        other queryable. Returns the fully qualified name."""
         fq_name = self.resolve(name)
         self._declare(EntityKind.SERVICE_SERVER, fq_name, service_type)
         own_gid = _gid(self.tokens[-1])
@@ -113,7 +114,7 @@ class Ros2Node:
             sequence, gid = (request.sequence_number, request.gid) if request is not None else (0, own_gid)
             return [(key, response, Attachment(sequence, _now_ns(), gid).encode())]
 
-        self.handles.append(self.bus.declare_queryable(data_pattern(self.identity.domain_id, fq_name), answer))
+        self.handles.append(self.bus.declare_queryable(data_pattern(self.identity.domain_id, fq_name), answer, complete=True))
         return fq_name
 
     def close(self) -> None:

@@ -43,9 +43,12 @@ class Bus(Protocol):
     def subscribe_attached(self, key_expr: str, callback: AttachedCallback) -> Closeable:
         """Call ``callback(key, payload, attachment or None)`` for every sample matching ``key_expr``."""
 
-    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Closeable:
+    def declare_queryable(self, key_expr: str, handler: QueryHandler, complete: bool = False) -> Closeable:
         """Answer queries matching ``key_expr``: ``handler(key, payload, attachment)`` returns the
-        replies ``(key, payload, attachment)``; it runs on a transport thread, so it must be quick."""
+        replies ``(key, payload, attachment)``; it runs on a transport thread, so it must be quick.
+        ``complete``: the queryable answers for every key that ``key_expr`` matches (Zenoh's
+        ``complete``); queries with target ALL_COMPLETE, as rmw_zenoh's service clients send, reach
+        only complete queryables."""
 
     def query(self, key: str, payload: bytes, attachment: bytes | None = None, timeout: float = 5.0) -> list[Reply]:
         """Send a query and collect the successful replies until ``timeout`` seconds or the last one."""

@@ -62,7 +62,9 @@ class MemoryBus:
             self._subscribers.append(entry)
         return _Registration(self, self._subscribers, entry)
 
-    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> _Registration:
+    def declare_queryable(self, key_expr: str, handler: QueryHandler, complete: bool = False) -> _Registration:
+        """As :meth:`Bus.declare_queryable`; ``complete`` changes nothing here: the in-memory queries
+        reach every matching queryable, as Zenoh's default query target does."""
         entry = (key_expr, handler)
         with self._lock:
             self._queryables.append(entry)

@@ -105,8 +105,8 @@ class ZenohBus:
     def subscribe_attached(self, key_expr: str, callback: AttachedCallback) -> _Undeclare:
         return _Undeclare(self._session.declare_subscriber(key_expr, lambda sample: _safe_attached(callback, sample)))
 
-    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> _Undeclare:
-        return _Undeclare(self._session.declare_queryable(key_expr, lambda query: _answer(handler, query)))
+    def declare_queryable(self, key_expr: str, handler: QueryHandler, complete: bool = False) -> _Undeclare:
+        return _Undeclare(self._session.declare_queryable(key_expr, lambda query: _answer(handler, query), complete=complete))
 
     def query(self, key: str, payload: bytes, attachment: bytes | None = None, timeout: float = 5.0) -> list[Reply]:
         replies: list[Reply] = []

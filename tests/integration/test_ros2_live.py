@@ -37,8 +37,10 @@ from services.ros2.node import Ros2Node
 from services.sensor_ingest.service import Pacer
 from services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from services.supervisor import write_config
+from services.transport import TransportConfig
 from tests.integration.conftest import ROBOT, wait_for
 from tests.ros2 import messages
+from tests.ros2.rmw_client import RmwServiceClient
 
 EPOCH = 1_700_000_000.0  # ROS stamps are UNIX time: the stream's stamps are offset by this
 TRACKED_TRANSLATION, TRACKED_ROTATION_DEG = 0.15, 3.0
@@ -206,7 +208,11 @@ def test_ros2_topics_in_and_out_converge_count_bad_input_and_serve_the_service(h
         epoch = observer.poses[-1].epoch
         key = data_key(0, fully_qualified_name("reinitialize_global_localization"), "std_srvs/srv/Empty")
         request = serialize(message_class("std_srvs/srv/Empty_Request")(), "std_srvs/srv/Empty_Request")
-        replies = bus.query(key, request, attachment=Attachment(5, 0, bytes(range(16))).encode(), timeout=10.0)
+        client = RmwServiceClient(TransportConfig(connect=(stack.endpoint,)))  # as `ros2 service call` queries
+        try:
+            replies = client.call(key, request, Attachment(5, 0, bytes(range(16))).encode(), timeout=10.0)
+        finally:
+            client.close()
         assert len(replies) == 1 and deserialize(replies[0][1], "std_srvs/srv/Empty_Response") is not None
         assert Attachment.decode(replies[0][2]).sequence_number == 5
         wait_for(lambda: observer.poses[-1].epoch == epoch + 1, 30, "re-initialisation over the map", stack)

@@ -9,6 +9,7 @@ import pytest
 
 from services.transport import Inbox, LatestSlot, TransportConfig, open_bus
 from services.transport.memory import MemoryBus, key_matches
+from tests.ros2.rmw_client import RmwServiceClient
 from tests.services.helpers import free_port, wait_until
 
 
@@ -109,10 +110,11 @@ def test_zenoh_bus_on_loopback_carries_attachments_and_answers_queries():
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     hub = open_bus(TransportConfig(listen=(endpoint,)))
     a = open_bus(TransportConfig(connect=(endpoint,)))
+    ros_client = RmwServiceClient(TransportConfig(connect=(endpoint,)))
     try:
         got: Inbox[tuple[bytes, bytes | None]] = Inbox()
         hub.subscribe_attached("t/**", lambda _key, payload, attachment: got.put((payload, attachment)))
-        a.declare_queryable("srv/*/*", lambda key, payload, attachment: [(key, payload + b"!", attachment)])
+        a.declare_queryable("srv/*/*", lambda key, payload, attachment: [(key, payload + b"!", attachment)], complete=True)
         received = None
         deadline = time.monotonic() + 20.0
         while received is None and time.monotonic() < deadline:
@@ -120,8 +122,11 @@ def test_zenoh_bus_on_loopback_carries_attachments_and_answers_queries():
             received = got.get(timeout=0.2)
         assert received == (b"payload", b"\x01\x02")
         wait_until(lambda: hub.query("srv/t/h", b"q", attachment=b"at", timeout=2.0) == [("srv/t/h", b"q!", b"at")], 20.0, "a reply")
+        # rmw_zenoh's clients query with target ALL_COMPLETE: only a complete queryable answers them.
+        assert ros_client.call("srv/t/h", b"q", b"at", timeout=2.0) == [("srv/t/h", b"q!", b"at")]
         assert a.session_id != hub.session_id and int(a.session_id, 16) > 0
     finally:
+        ros_client.close()
         for bus in (a, hub):
             bus.close()
 
