@@ -22,6 +22,9 @@ suggests turning that protection off) is not passed on.
 
 Saving writes a temporary file beside the target and renames it into place, so an interrupted
 save never leaves a half-written map under the target name.
+
+A map's identity is the SHA-256 (hex) of its payload (the whole file for version 1): a loaded or
+saved map carries it as ``checksum``, and filter and workers compare it (docs/SERVICES.md).
 """
 
 from __future__ import annotations
@@ -60,12 +63,14 @@ class SavableMap(Protocol):
     kind: str
     info: MapInfo
     surface_distance: SurfaceDistance | None
+    checksum: str | None
 
     def state(self) -> dict[str, Any]: ...
 
 
 def save_map(radiance_map: SavableMap, path: str | Path) -> Path:
-    """Write ``radiance_map`` to ``path`` atomically (temp file in the same folder, then rename)."""
+    """Write ``radiance_map`` to ``path`` atomically (temp file in the same folder, then rename); the map's
+    ``checksum`` becomes the file's, as :func:`load_map` would give it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     archive = {
@@ -80,10 +85,11 @@ def save_map(radiance_map: SavableMap, path: str | Path) -> Path:
     buffer = io.BytesIO()
     torch.save(archive, buffer)
     payload = buffer.getvalue()
+    digest = hashlib.sha256(payload)
     handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
     try:
         with os.fdopen(handle, "wb") as stream:
-            stream.write(HEADER.pack(MAGIC, FORMAT_VERSION, len(payload), hashlib.sha256(payload).digest()))
+            stream.write(HEADER.pack(MAGIC, FORMAT_VERSION, len(payload), digest.digest()))
             stream.write(payload)
             stream.flush()
             os.fsync(stream.fileno())
@@ -91,18 +97,19 @@ def save_map(radiance_map: SavableMap, path: str | Path) -> Path:
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+    radiance_map.checksum = digest.hexdigest()
     return path
 
 
-def _payload_of(path: Path, data: bytes) -> tuple[bytes, int]:
-    """(torch archive bytes, file format version) of a map file's ``data``, checked against its header.
+def _payload_of(path: Path, data: bytes) -> tuple[bytes, int, str]:
+    """(torch archive bytes, file format version, SHA-256 hex of the payload) of a map file's ``data``, checked against its header.
 
     Raises:
         MapFileError: foreign, truncated, newer version, checksum mismatch.
     """
     if data.startswith(b"PK\x03\x04"):  # a bare torch.save zip archive: version 1
         logger.warning("map file %s: format version 1 carries no checksum; re-save it (locnerf map build) for version 2", path)
-        return data, 1
+        return data, 1, hashlib.sha256(data).hexdigest()
     if not data.startswith(MAGIC):
         raise MapFileError(f"map file {path}: not a locnerf map (no '{MAGIC.rstrip(bytes(1)).decode()}' header)")
     if len(data) < HEADER.size:
@@ -117,7 +124,7 @@ def _payload_of(path: Path, data: bytes) -> tuple[bytes, int]:
         raise MapFileError(f"map file {path}: truncated or extended payload ({len(payload)} bytes, the header says {length})")
     if hashlib.sha256(payload).digest() != digest:
         raise MapFileError(f"map file {path}: checksum mismatch (SHA-256 of the payload differs from the header): damaged or tampered")
-    return payload, version
+    return payload, version, digest.hex()
 
 
 def read_map_archive(path: str | Path) -> dict[str, Any]:
@@ -128,10 +135,15 @@ def read_map_archive(path: str | Path) -> dict[str, Any]:
         MapFileError: truncated/corrupt, not a locnerf map, newer format version, checksum mismatch,
             objects that only code could rebuild, unknown backend.
     """
+    return _checked_archive(path)[0]
+
+
+def _checked_archive(path: str | Path) -> tuple[dict[str, Any], str]:
+    """(:func:`read_map_archive`'s archive, the map's checksum: SHA-256 hex of the payload)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"map file {path}: no such file")
-    payload, file_version = _payload_of(path, path.read_bytes())
+    payload, file_version, checksum = _payload_of(path, path.read_bytes())
     try:
         archive = torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:
@@ -151,14 +163,15 @@ def read_map_archive(path: str | Path) -> dict[str, Any]:
         raise MapFileError(f"map file {path}: archive version {version} inside a version-{file_version} file")
     if archive.get("kind") not in BACKENDS:
         raise MapFileError(f"map file {path}: unknown backend kind {archive.get('kind')!r}, expected one of {sorted(BACKENDS)}")
-    return archive
+    return archive, checksum
 
 
 def load_map(path: str | Path, device: torch.device | str = "cpu") -> GridMap | NerfPytorchMap:
-    """Load a map file onto ``device`` as its backend's RadianceMap."""
-    archive = read_map_archive(path)
+    """Load a map file onto ``device`` as its backend's RadianceMap, its ``checksum`` the file's."""
+    archive, checksum = _checked_archive(path)
     info = MapInfo.from_record(archive["info"])
     radiance_map = BACKENDS[archive["kind"]].from_state(archive["state"], info, torch.device(device))
+    radiance_map.checksum = checksum
     if "surface_distance" in archive:
         try:
             radiance_map.surface_distance = SurfaceDistance.from_state(archive["surface_distance"]).to(device)

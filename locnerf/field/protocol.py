@@ -98,6 +98,11 @@ class RadianceMap(Protocol):
     def default_intrinsics(self) -> PinholeIntrinsics:
         """The camera the map was built for (used when a request names none)."""
 
+    @property
+    def checksum(self) -> str | None:
+        """Identity of the map's content, the same for the same content (SHA-256 hex: of a map file's payload, of the
+        procedural world's configuration); None for a map built in memory and not saved."""
+
     def camera_bounds(self) -> torch.Tensor:
         """(2, 3) min and max corner of the region where camera positions are plausible (map frame)."""
 

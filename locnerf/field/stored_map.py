@@ -18,6 +18,8 @@ class StoredMap:
 
     info: MapInfo
     surface_distance: SurfaceDistance | None = None
+    checksum: str | None = None
+    """The map's identity: SHA-256 (hex) of the map file's payload it was loaded from or last saved to; None before either."""
 
     @property
     def normalization(self) -> MapNormalization:

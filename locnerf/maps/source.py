@@ -22,6 +22,18 @@ def open_map(spec: str, device: torch.device) -> RadianceMap:
     return load_map(spec, device)
 
 
+def map_identity(radiance_map: RadianceMap) -> str:
+    """The map's checksum (:attr:`RadianceMap.checksum`), by which the filter tells the workers that hold its map.
+
+    Raises:
+        ValueError: a map without one (built in memory and never saved).
+    """
+    checksum = getattr(radiance_map, "checksum", None)
+    if not checksum:
+        raise ValueError(f"{type(radiance_map).__name__} has no checksum: expected the world or a map saved to or loaded from a map file")
+    return checksum
+
+
 def target_views(radiance_map: RadianceMap, count: int, generator: torch.Generator) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
     """``count`` (true pose (4, 4) float64, image (H, W, 3)) pairs rendered by the map itself.
 

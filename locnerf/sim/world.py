@@ -8,6 +8,7 @@ stand wherever a NeRF map can: as ground truth in tests and as the source of syn
 
 from __future__ import annotations
 
+import hashlib
 import math
 
 import torch
@@ -95,6 +96,11 @@ class ProceduralWorld:
     @property
     def default_intrinsics(self) -> PinholeIntrinsics:
         return self._intrinsics
+
+    @property
+    def checksum(self) -> str:
+        """SHA-256 (hex) of the configuration, which fixes the whole world (layout and textures are drawn from its seed)."""
+        return hashlib.sha256(b"locnerf procedural world\n" + self.config.model_dump_json().encode()).hexdigest()
 
     def camera_bounds(self) -> torch.Tensor:
         """(2, 3) region of plausible camera positions: the room less a margin, between two heights."""

@@ -15,7 +15,9 @@ from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import FORMAT_VERSION, HEADER, MAGIC, MapFileError, load_map, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.protocol import MapNormalization, RadianceMap
+from locnerf.maps.source import WORLD, map_identity, open_map
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.sim.world import ProceduralWorld, WorldConfig
 
 
 def _tiny_map(generator: torch.Generator, ndc: bool = False) -> GridMap:
@@ -217,3 +219,21 @@ def test_trilinear_lookup_gradient_matches_grid_sample(generator: torch.Generato
     (sampled * upstream).sum().backward()
     expected = volume.grad.reshape(volume.shape[1], -1).t()
     torch.testing.assert_close(field.grid.grad, expected, atol=1e-10, rtol=0)
+
+
+def test_a_map_is_identified_by_the_checksum_of_its_content(generator: torch.Generator, tmp_path: Path) -> None:
+    """A saved or loaded map's checksum is the SHA-256 of the file's payload, the same for the same content; the
+    world's is fixed by its configuration; a map never saved has none, which a service refuses to serve."""
+    radiance_map = _tiny_map(generator)
+    with pytest.raises(ValueError, match="GridMap has no checksum"):
+        map_identity(radiance_map)
+    path = save_map(radiance_map, tmp_path / "a.locnerf")
+    assert radiance_map.checksum == hashlib.sha256(path.read_bytes()[HEADER.size :]).hexdigest()
+    assert map_identity(load_map(path)) == radiance_map.checksum == map_identity(open_map(str(path), torch.device("cpu")))
+    assert save_map(load_map(path), tmp_path / "copy.locnerf").read_bytes() == path.read_bytes()  # same content, same identity
+    other = _tiny_map(torch.Generator().manual_seed(99))
+    save_map(other, tmp_path / "b.locnerf")
+    assert other.checksum != radiance_map.checksum
+    world = open_map(WORLD, torch.device("cpu"))
+    assert map_identity(world) == ProceduralWorld.default().checksum != ProceduralWorld(WorldConfig(seed=8)).checksum
+    assert len(world.checksum) == 64 and int(world.checksum, 16) >= 0
