@@ -63,6 +63,13 @@ class Ros2Config(BaseModel):
     odom_frame_id: str = Field("odom", description="The odometry frame of the VIO.")
     base_frame_id: str = Field("base_link", description="The robot body frame (T_body_cam relates it to the camera).")
     publish_tf: bool = Field(True, description="Publish map -> odom on tf_topic, as nav2_amcl's tf_broadcast.")
+    transform_tolerance: float = Field(
+        1.0,
+        ge=0,
+        description="Seconds by which map -> odom is future-dated (stamped odometry stamp + transform_tolerance), as nav2_amcl's "
+        "transform_tolerance (default 1.0): tf lookups of map -> base_link at sensor stamps newer than the last odometry then interpolate "
+        "instead of failing as an extrapolation into the future.",
+    )
 
     @field_validator("T_colour_depth")
     @classmethod

@@ -9,6 +9,8 @@ axes inside locnerf). With the camera pose ``T_map_cam`` from the filter and the
 
     T_map_base = T_map_cam · T_body_cam⁻¹,   T_map_odom = T_map_base · T_odom_base⁻¹   (as nav2_amcl)
 
+and, as nav2_amcl, ``map → odom`` is stamped ``stamp + transform_tolerance`` (future-dated).
+
 Translation runs on the filter thread; the transport callbacks only enqueue. Every failure raises
 :class:`DecodeError` with a ``ros2_*`` kind, which the driver counts in the filter's bad-message
 counters (visible in FilterStatus).
@@ -156,7 +158,7 @@ class FilterRos2Bridge:
         T_odom_base = T_odom_cam @ self.T_cam_body
         T_map_odom = T_map_base @ pose_inverse(T_odom_base)
         transform = message_class("geometry_msgs/msg/TransformStamped")(
-            header=convert.header(estimate.stamp, self.config.global_frame_id),
+            header=convert.header(estimate.stamp + self.config.transform_tolerance, self.config.global_frame_id),
             child_frame_id=self.config.odom_frame_id,
             transform=convert.transform_message(T_map_odom),
         )

@@ -179,9 +179,10 @@ def test_ros2_topics_in_and_out_converge_count_bad_input_and_serve_the_service(h
         sensors.initial.publish(messages.initial_pose(EPOCH, truth @ offset, covariance.tolist()))
         wait_for(ros.tracking, 60, "amcl_pose to converge on the ground truth", stack)
 
-        # /tf: map -> odom composes with the odometry of the same stamp into amcl_pose.
+        # /tf: map -> odom composes with the odometry of the same stamp into amcl_pose; it is stamped
+        # transform_tolerance (1 s) after that stamp, as nav2_amcl future-dates it.
         with ros.lock:
-            transforms = {nanoseconds(m.transforms[0].header.stamp): m.transforms[0] for m in ros.received["tf"]}
+            transforms = {nanoseconds(m.transforms[0].header.stamp) - 1_000_000_000: m.transforms[0] for m in ros.received["tf"]}
             pose = next(m for m in reversed(ros.received["amcl_pose"]) if nanoseconds(m.header.stamp) in transforms)
             tf, cloud = transforms[nanoseconds(pose.header.stamp)], ros.received["particle_cloud"]
         assert (tf.header.frame_id, tf.child_frame_id) == ("map", "odom") and cloud and len(cloud[-1].poses) > 0

@@ -102,6 +102,7 @@ def test_initial_pose_odometry_and_outputs_follow_the_amcl_frames():
     assert torch.allclose(torch.tensor(camera.T_world_cam, dtype=torch.float64), T_map_base @ T_BODY_CAM, atol=1e-3)
     transform = received["tf"][-1][0].transforms[0]
     assert (transform.header.frame_id, transform.child_frame_id) == ("map", "odom")
+    assert convert.seconds(transform.header.stamp) == 11.0, "future-dated by transform_tolerance (nav2_amcl's 1 s)"
     t, q = transform.transform.translation, transform.transform.rotation
     rosless = message_class("geometry_msgs/msg/Pose")(position=message_class("geometry_msgs/msg/Point")(t.x, t.y, t.z), orientation=q)
     T_map_odom = convert.pose_from_message(rosless)
