@@ -56,7 +56,8 @@ class Lineage:
     def ancestors(self, ids: torch.Tensor, current_generation: int, target_generation: int) -> torch.Tensor:
         """Ids in ``target_generation`` of the ancestors of ``ids`` (current generation).
 
-        Injected particles (no parent) map to :data:`NO_ANCESTOR`.
+        Particles that descend from none in the target generation (injected by recovery, re-drawn by
+        convergence protection) map to :data:`NO_ANCESTOR`.
 
         Raises:
             ValueError: if the target is newer than the current generation or no longer traceable.

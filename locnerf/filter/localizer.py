@@ -277,6 +277,14 @@ class Localizer:
 
     # ----------------------------------------------------------------- delayed update
     def _protect_convergence(self, particles: ParticleSet) -> None:
+        """Re-draw ``convergence_protection.count`` particle positions uniformly around the weighted mean.
+
+        A re-drawn particle is a new hypothesis, so it becomes a new particle: the re-drawing starts a
+        generation in which the others keep their ids (each its own parent) and the re-drawn ones get
+        fresh ids with no ancestor. An update still in flight on an older snapshot then gives them the
+        median likelihood, never the one computed for the pose they replaced (design section 3). Until
+        an update weighs them they are, like recovery's injections, left out of the estimate
+        (``parent_ids`` is :data:`NO_ANCESTOR`)."""
         protection = self.config.convergence_protection
         count = min(protection.count, particles.count)
         if count == 0 or protection.half_width == 0:
@@ -285,6 +293,25 @@ class Localizer:
         chosen = torch.randperm(particles.count, generator=self.generator)[:count].to(self.device)
         offsets = initialization.uniform(count * 3, -protection.half_width, protection.half_width, self.generator)
         particles.poses[chosen, :3, 3] = mean + offsets.reshape(count, 3).to(self.device, self.dtype)
+        ids, lineage_parents, parent_ids = particles.ids.clone(), particles.ids.clone(), particles.parent_ids.clone()
+        ids[chosen] = self._fresh_ids(count)
+        lineage_parents[chosen] = NO_ANCESTOR
+        parent_ids[chosen] = NO_ANCESTOR
+        self._start_generation(particles, ids, lineage_parents)
+        particles.parent_ids = parent_ids
+
+    def _fresh_ids(self, count: int) -> torch.Tensor:
+        """(count,) int64 particle ids never issued before."""
+        ids = torch.arange(self._next_id, self._next_id + count, dtype=torch.int64, device=self.device)
+        self._next_id += count
+        return ids
+
+    def _start_generation(self, particles: ParticleSet, ids: torch.Tensor, lineage_parents: torch.Tensor) -> None:
+        """Give ``particles`` the ids (N,) of a new generation whose parents (N,) in the previous one the
+        lineage records (:data:`NO_ANCESTOR` for particles that descend from none)."""
+        particles.generation += 1
+        self._lineage.record(particles.generation, ids, lineage_parents)
+        particles.ids = ids
 
     def snapshot(self, carry: torch.Tensor | None = None) -> UpdateSnapshot:
         """Freeze the particles for an update (after convergence protection).
@@ -393,7 +420,8 @@ class Localizer:
         eq. 5's sharp likelihood the mean mostly measures how tight the cluster is (a looser cluster
         has fewer particles near the peak), so annealing or the injections themselves would keep
         triggering injections after the filter has recovered. Particles injected at the last
-        resampling are left out for the same reason.
+        resampling or re-drawn by convergence protection since (``parent_ids`` :data:`NO_ANCESTOR`)
+        are left out for the same reason.
         """
         survivors = (particles.parent_ids != NO_ANCESTOR).cpu()
         return float(per_particle[survivors].max() if bool(survivors.any()) else per_particle.max())
@@ -422,12 +450,8 @@ class Localizer:
             poses[replaced] = fresh.to(self.device, self.dtype)
             parents[replaced] = NO_ANCESTOR
             self.counters["injected"] += injected
-        children = torch.arange(self._next_id, self._next_id + target, dtype=torch.int64, device=self.device)
-        self._next_id += target
-        particles.generation += 1
-        self._lineage.record(particles.generation, children, parents)
+        self._start_generation(particles, self._fresh_ids(target), parents)
         particles.poses = poses
-        particles.ids = children
         particles.parent_ids = parents
         particles.log_weights = torch.full((target,), -float(torch.log(torch.tensor(float(target)))), dtype=self.dtype, device=self.device)
         return injected
@@ -562,9 +586,10 @@ class Localizer:
     def estimate(self) -> ParticleEstimate:
         """The current estimate (weighted mean pose, covariance, spread, ESS).
 
-        Particles injected by recovery at the last resampling have not been weighed by any image
-        yet: until the next update they are left out of pose, covariance and spread (otherwise
-        uniform injections would drag the mean towards the middle of the search region).
+        Particles injected by recovery at the last resampling or re-drawn by convergence protection
+        since have not been weighed by any image yet: until the next update they are left out of
+        pose, covariance and spread (otherwise uniform injections would drag the mean towards the
+        middle of the search region).
         """
         particles = self._require_particles()
         weighed = particles.parent_ids != NO_ANCESTOR

@@ -16,10 +16,13 @@ class ParticleSet:
     Attributes:
         poses: (N, 4, 4) camera-to-world poses ``T_world_cam`` in map units.
         log_weights: (N,) normalised log-weights (``logsumexp == 0``).
-        ids: (N,) int64 stable identities; prediction keeps them, resampling issues new ones.
-        parent_ids: (N,) int64 identity of each particle's parent in the previous generation,
-            -1 for particles that were injected rather than resampled.
-        generation: incremented by every resampling.
+        ids: (N,) int64 stable identities; prediction keeps them, resampling issues new ones, and
+            convergence protection new ones for the particles it re-draws.
+        parent_ids: (N,) int64 identity of each particle's parent at the last resampling, -1 for
+            particles no update has weighed yet: drawn at initialisation, injected by recovery or
+            re-drawn by convergence protection since.
+        generation: incremented by every resampling and every convergence protection (the
+            localizer's lineage records each generation's parents).
     """
 
     poses: torch.Tensor

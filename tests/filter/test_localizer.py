@@ -199,3 +199,26 @@ def test_a_synchronous_update_renders_the_pixels_its_ray_budget_allows(generator
     localizer.initialize(torch.eye(4, dtype=torch.float64).expand(50, 4, 4).clone())
     localizer.update(image, camera, counting_render)
     assert sum(rendered) == 1000
+
+
+def test_a_result_computed_before_convergence_protection_does_not_score_the_redrawn_particle(generator):
+    """Two snapshots of one generation in flight, protection on: the second re-draws a particle, whose
+    old pose the first result scores best. That score belongs to the old pose, not to the re-drawn one."""
+    protection = ConvergenceProtectionConfig(count=1, half_width=0.2)
+    localizer = make_localizer(generator, convergence_protection=protection, resampler="systematic")
+    localizer.initialize(line_of_particles(8))
+    first = localizer.snapshot()
+    second = localizer.snapshot()
+    redrawn = int(torch.nonzero((first.poses != second.poses).any(dim=-1).any(dim=-1)).squeeze())
+    before = localizer.particles.positions.clone()
+    scores = torch.full((8,), -1e6, dtype=torch.float64)
+    scores[redrawn] = 0.0  # the old pose at this index is the only plausible one
+    assert localizer.merge(first.epoch, first.generation, first.ids, scores).outcome == "merged"
+    # The re-drawn particle stands in with the median; no particle is copied in its place.
+    after = localizer.particles.positions
+    assert torch.equal(after[torch.argsort(after[:, 0])], before[torch.argsort(before[:, 0])])
+    # The second result, computed on the re-drawn pose itself, does weigh it.
+    scores = torch.full((8,), -1e6, dtype=torch.float64)
+    scores[redrawn] = 0.0
+    localizer.merge(second.epoch, second.generation, second.ids, scores)
+    assert torch.allclose(localizer.particles.positions, second.poses[redrawn, :3, 3].expand(8, 3))

@@ -70,12 +70,12 @@ def test_a_merge_whose_snapshot_predates_predictions_and_a_resample(world, gener
     harness.tick()
     second = harness.requests.pop()[1]
     harness.answer(second)  # merged first: resamples, a new generation
-    assert harness.loop.localizer.particles.generation == first.generation + 1
+    assert harness.loop.localizer.particles.generation == second.generation + 1
     harness.answer(first)
     counters = harness.loop.counters()
     assert counters["updates_merged"] == 2 and counters["stale_results"] == 0
     assert counters["updates_tempered"] == 0  # the harness's localizer does not temper
-    assert harness.loop.localizer.particles.generation == first.generation + 2
+    assert harness.loop.localizer.particles.generation == second.generation + 2
 
 
 def test_a_result_from_before_a_reinitialisation_is_stale(world, generator):
