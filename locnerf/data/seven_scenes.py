@@ -30,12 +30,12 @@ from tqdm import tqdm
 
 from locnerf.data.image_files import read_rgb, stack_same_size
 from locnerf.data.posed_images import PosedImages
+from locnerf.data.scene_bounds import BOUNDS_FRAMES, bounds_pixel_step, depth_points, percentile_box
 from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry.averaging import project_to_rotation
 from locnerf.geometry.frames import opencv_to_opengl
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.render.rays import camera_directions_from_pixels
 
 logger = logging.getLogger(__name__)
 
@@ -49,13 +49,9 @@ INVALID_DEPTH_MM = (0, 65535)
 RIGID_TOLERANCE = 1e-3
 """Largest |RᵀR - I| entry of an accepted pose rotation (the data's own: 4e-4)."""
 BOX_MARGIN_M = 0.1
-BOX_PERCENTILES = (0.5, 99.5)
-"""Depth points outside these per-axis percentiles (sensor outliers) do not widen the box."""
 NO_DEPTH_REACH_M = 2.0
 """Without depth, the box is the camera centres' box grown by this (a room seen from inside)."""
 NEAR_M = 0.1
-BOUNDS_FRAMES, BOUNDS_PIXELS = 150, 2000
-"""Frames (evenly spread) and pixels per frame (about) back-projected for the scene box."""
 DEFAULT_UP = (0.0, -1.0, 0.0)
 
 
@@ -176,23 +172,6 @@ def _up_axis(folder: Path) -> tuple[float, float, float]:
     return (float(up[0]), float(up[1]), float(up[2]))
 
 
-def depth_points(depths: torch.Tensor, T_world_cam: torch.Tensor, camera: PinholeIntrinsics) -> torch.Tensor:
-    """(P, 3) world points of the valid pixels of depth images (K, H, W) seen from poses (K, 4, 4) (OpenGL axes).
-
-    Directions have camera z = -1, so a pixel's point is its direction times its depth. The pixel
-    grid is the images' own (H, W); ``camera`` gives the focal lengths and principal point.
-    """
-    height, width = depths.shape[1:]
-    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64), indexing="ij")
-    directions = camera_directions_from_pixels(torch.stack((u, v), dim=-1), camera)  # (H, W, 3)
-    points = []
-    for depth, pose in zip(depths.double(), T_world_cam.double()):
-        valid = depth > 0
-        local = directions[valid] * depth[valid][:, None]
-        points.append(local @ pose[:3, :3].T + pose[:3, 3])
-    return torch.cat(points) if points else torch.zeros(0, 3, dtype=torch.float64)
-
-
 def scene_box(T_world_cam: torch.Tensor, depths: torch.Tensor | None, camera: PinholeIntrinsics | None) -> torch.Tensor:
     """(2, 3) float64 box around the camera centres and the depth points (robust percentiles), plus a margin."""
     centres = T_world_cam[:, :3, 3].double()
@@ -200,11 +179,10 @@ def scene_box(T_world_cam: torch.Tensor, depths: torch.Tensor | None, camera: Pi
     if depths is None or camera is None:
         return torch.stack((low - NO_DEPTH_REACH_M, high + NO_DEPTH_REACH_M))
     frames = max(1, len(depths) // BOUNDS_FRAMES)
-    step = max(1, round((camera.width * camera.height / BOUNDS_PIXELS) ** 0.5))
+    step = bounds_pixel_step(camera.width, camera.height)
     points = depth_points(depths[::frames, ::step, ::step], T_world_cam[::frames], camera.scaled(1.0 / step))
     if len(points):
-        percentiles = torch.tensor(BOX_PERCENTILES, dtype=torch.float64) / 100.0
-        quantiles = torch.quantile(points[:: max(1, len(points) // 1_000_000)], percentiles, dim=0)
+        quantiles = percentile_box(points)
         low, high = torch.minimum(low, quantiles[0]), torch.maximum(high, quantiles[1])
     return torch.stack((low - BOX_MARGIN_M, high + BOX_MARGIN_M))
 

@@ -20,6 +20,7 @@ import torch
 
 from locnerf.data.image_files import read_rgb, resolve_image_path, stack_same_size
 from locnerf.data.posed_images import PosedImages
+from locnerf.data.scene_bounds import transforms_scene_box
 from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
 from locnerf.render.camera import PinholeIntrinsics
@@ -159,9 +160,9 @@ def read_nerfstudio(
 ) -> PosedImages:
     """Read a nerfstudio ``transforms.json`` (or the folder holding it).
 
-    All frames must share one camera after undistortion and downscaling. The scene bounds are the
-    box of the camera centres, grown by half its size (nerfstudio scenes are captured from inside
-    or around the region of interest); ``near``/``far`` are 0.05 and the box diagonal.
+    All frames must share one camera after undistortion and downscaling. The scene bounds come
+    from the file's ``aabb``, sparse points, depth images, ``aabb_scale`` or ``near``/``far``
+    (:func:`locnerf.data.scene_bounds.transforms_scene_box`); a file with none of them is refused.
 
     Args:
         path: ``transforms.json`` or its folder.
@@ -193,17 +194,13 @@ def read_nerfstudio(
     images = stack_same_size(undistorted, paths)
     intrinsics = first.scaled(images.shape[2] / first.width)
     poses = np.stack([_frame_pose(frames[i], path, i) for i in positions])
-    centres = poses[:, :3, 3]
-    low, high = centres.min(0), centres.max(0)
-    margin = 0.5 * (high - low).max() + 1e-3
-    bounds = torch.tensor(np.stack([low - margin, high + margin]), dtype=torch.float64)
-    far = float(np.linalg.norm(bounds[1] - bounds[0]))
-    normalization = MapNormalization(near=0.05, far=far)
+    bounds, near, far = transforms_scene_box(content, path, [frames[i] for i in positions], poses, first)
+    normalization = MapNormalization(near=near, far=far)
     return PosedImages(
         images=torch.from_numpy(images),
         T_world_cam=torch.from_numpy(poses),
         intrinsics=intrinsics,
-        near=0.05,
+        near=near,
         far=far,
         normalization=normalization,
         names=[p.stem for p in paths],

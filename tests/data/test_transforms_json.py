@@ -50,7 +50,7 @@ def _write_nerfstudio(folder: Path, shared: dict, frames: list[dict], images: li
     for frame, image in zip(frames, images):
         cv2.imwrite(str(folder / frame["file_path"]), image)
     path = folder / "transforms.json"
-    path.write_text(json.dumps({**shared, "frames": frames}))
+    path.write_text(json.dumps({"aabb": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], **shared, "frames": frames}))
     return path
 
 
