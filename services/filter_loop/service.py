@@ -43,6 +43,7 @@ from locnerf.messages.schemas import (
 )
 from services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
 from services.filter_loop.frames import FilterFrames
+from services.filter_loop.image_hold import Frame, ImageHold
 from services.filter_loop.loop_state import LoopStateMachine
 from services.filter_loop.odometry_history import OdometryHistory
 from services.filter_loop.persistence import PosePersistence
@@ -64,6 +65,13 @@ class FilterLoopConfig(BaseModel):
     update_timeout: float = Field(5.0, gt=0, description="An update not complete after this many seconds is abandoned.")
     max_in_flight: int = Field(2, ge=1, description="Updates in flight at once (2 keeps the workers busy while the filter merges).")
     max_image_age: float = Field(1.0, gt=0, description="Images older than the newest odometry by more than this are dropped, seconds.")
+    image_odometry_wait: float = Field(
+        0.3,
+        gt=0,
+        description="Longest wait, seconds of the filter's clock, of an image stamped after the newest odometry for odometry at or after its "
+        "stamp (so that the particles are carried to the image's stamp, not weighed at the older odometry's). VIO publishes after the "
+        "camera; 0.3 s is between 4 and 5 periods of 15 Hz odometry. An image whose wait is over is dropped (images_odometry_wait_expired).",
+    )
     updates_per_image: int = Field(
         1,
         ge=1,
@@ -139,7 +147,8 @@ class FilterLoop:
         self.inbox_dropped = 0
         self.odometry_restarts = 0
         self._stepped_back: list[float] = []
-        self._image: tuple[ImageHeader, np.ndarray, np.ndarray | None] | None = None
+        self._image: Frame | None = None
+        self.held_images = ImageHold(config.image_odometry_wait)
         self._warned_no_depth = False
         self.depth_without_readings = 0
         self._image_uses = 0
@@ -272,12 +281,19 @@ class FilterLoop:
             # No odometry places the particles at this stamp (odometry stopped, or the image's clock jumped ahead).
             self.bad.record("image_ahead", f"image stamp {header.stamp} is more than {self.config.max_image_age} s after the newest odometry ({latest})")
             return []
+        self.rates["image"].tick()
+        if latest is not None and header.stamp > latest:
+            self.held_images.hold((header, pixels, depth), self.clock())  # until odometry reaches its stamp (image_hold.py)
+        else:
+            self._use_image((header, pixels, depth))
+        return []
+
+    def _use_image(self, frame: Frame) -> None:
+        """Make ``frame`` the image of the next update (an unused older one is replaced, counted)."""
         if self._image is not None and self._image_uses == 0:
             self.images_replaced += 1
-        self._image = (header, pixels, depth)
+        self._image = frame
         self._image_uses = 0
-        self.rates["image"].tick()
-        return []
 
     def handle_result(self, payload: bytes) -> Outgoing:
         """Store a shard's result; merge when the update is complete."""
@@ -360,6 +376,9 @@ class FilterLoop:
         """Expire or start an update; publish particles and status when due."""
         now = self.clock()
         self.dispatcher.expire(now)
+        released = self.held_images.release(self.history.latest_stamp, now)
+        if released is not None:
+            self._use_image(released)
         out: Outgoing = []
         repeat = self._image_uses > 0
         if self.running and self._image is not None and self.dispatcher.can_start and not (repeat and self.dispatcher.pending):
@@ -443,7 +462,9 @@ class FilterLoop:
             "stale_results": merged["stale"],
             "degenerate_updates": merged["degenerate"],
             "updates_tempered": merged["tempered"],
-            "images_replaced": self.images_replaced + self.images_replaced_upstream,
+            "images_replaced": self.images_replaced + self.images_replaced_upstream + self.held_images.replaced,
+            "images_waited_for_odometry": self.held_images.released,
+            "images_odometry_wait_expired": self.held_images.expired,
             "bad_messages": self.bad.total,
             "odometry_restarts": self.odometry_restarts,
             "inbox_dropped": self.inbox_dropped,

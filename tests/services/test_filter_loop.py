@@ -12,6 +12,7 @@ import torch
 from locnerf.config import preset
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import carry_estimate
+from locnerf.filter.localizer import ConvergenceProtectionConfig
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
 from locnerf.maps.keyframes import build_keyframe_index
@@ -282,7 +283,59 @@ def test_an_image_stamped_after_the_newest_odometry_is_dropped(world, generator)
     assert harness.loop.counters()["bad_image_ahead"] == 1 and harness.requests == []
     harness.loop.handle_image(image_payload(world, 10.5, pose))
     harness.tick()
+    assert harness.requests == []  # within max_image_age: held for the odometry of its stamp
+    harness.collect(harness.loop.handle_odometry(odometry_payload(10.6, torch.eye(4, dtype=torch.float64))))
+    harness.tick()
     assert len(harness.requests) == 1
+
+
+def _moved_along_x(metres: float) -> torch.Tensor:
+    """The odometry pose (4, 4) float64 of a camera moved ``metres`` along its x axis."""
+    return make_pose(torch.eye(3, dtype=torch.float64), torch.tensor([metres, 0.0, 0.0], dtype=torch.float64))
+
+
+def _started_without_protection(world, generator, config: FilterLoopConfig) -> Harness:
+    """A harness with one worker, started around a sampled pose at odometry 0 s (no convergence protection:
+    the snapshot's poses are the particles' own, carried)."""
+    settings = preset("llff").model_copy(update={"convergence_protection": ConvergenceProtectionConfig(count=0)})
+    harness = Harness(world, config, localizer_config=settings)
+    harness.add_worker("w1")
+    harness.start_at(world.sample_camera_pose(generator), 1e-4 * torch.eye(6, dtype=torch.float64))
+    return harness
+
+
+def test_an_image_newer_than_the_odometry_waits_for_it_and_is_carried_to_its_own_stamp(world, generator):
+    harness = _started_without_protection(world, generator, FilterLoopConfig())
+    speed = 0.5  # m/s along the camera's x
+    harness.collect(harness.loop.handle_odometry(odometry_payload(0.1, _moved_along_x(speed * 0.1))))
+    harness.loop.handle_image(image_payload(world, 0.15, world.sample_camera_pose(generator)))
+    harness.tick()
+    assert harness.requests == [] and harness.loop.counters()["images_waited_for_odometry"] == 0
+    harness.now = 0.1
+    harness.collect(harness.loop.handle_odometry(odometry_payload(0.2, _moved_along_x(speed * 0.2))))
+    harness.tick()
+    assert len(harness.requests) == 1 and harness.loop.counters()["images_waited_for_odometry"] == 1
+    request = harness.requests[0][1]
+    particles = harness.loop.localizer.particles
+    index = {int(i): k for k, i in enumerate(particles.ids)}
+    current = particles.poses.double()[[index[i] for i in request.ids]]
+    # At the image's stamp (0.15 s) the camera was 0.05 s of motion behind the newest odometry (0.2 s).
+    behind = _moved_along_x(-speed * 0.05 * world.normalization.scale)
+    torch.testing.assert_close(torch.tensor(request.poses, dtype=torch.float64).reshape(-1, 4, 4), current @ behind)
+
+
+def test_an_image_whose_odometry_never_comes_is_dropped_when_its_wait_is_over(world, generator):
+    harness = _started_without_protection(world, generator, FilterLoopConfig(image_odometry_wait=0.3))
+    harness.loop.handle_image(image_payload(world, 0.05, world.sample_camera_pose(generator)))
+    harness.now = 0.3
+    harness.tick()
+    assert harness.requests == [] and harness.loop.counters()["images_odometry_wait_expired"] == 0
+    harness.now = 0.31
+    harness.tick()
+    assert harness.loop.counters()["images_odometry_wait_expired"] == 1
+    harness.collect(harness.loop.handle_odometry(odometry_payload(0.1, _moved_along_x(0.05))))
+    harness.tick()
+    assert harness.requests == [] and harness.loop.counters()["images_waited_for_odometry"] == 0
 
 
 def test_odometry_history_interpolates_and_carries(generator):
