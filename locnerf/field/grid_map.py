@@ -33,11 +33,11 @@ class GridMap(StoredMap):
         return self.field.grid.device
 
     def render_rays(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
-        """rgb (R, 3) in [0, 1] of world-frame rays: origins (R, 3), directions (R, 3)."""
+        """rgb (R, 3) in [0, 1] of world-frame rays: origins (R, 3), directions (R, 3) (the background where
+        a ray misses the map, including rays looking away from an NDC map's scene)."""
         origins = origins.to(self.device, torch.float32)
         directions = directions.to(self.device, torch.float32)
-        field_origins, field_directions = self.info.field_rays(origins, directions)
-        return self.field.render(field_origins, field_directions, directions)
+        return self.info.render_world_rays(origins, directions, self.field.render, self.field.background)
 
     def render_surface(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """rgb (R, 3), expected surface point (R, 3) and opacity (R,) of world-frame rays (R, 3) x2

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -9,9 +10,12 @@ import torch
 
 from locnerf.field.protocol import MapNormalization
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.render.ndc import ndc_rays_from_world_rays
+from locnerf.render.ndc import ndc_rays_from_world_rays, rays_facing_scene
 
 NDC_NEAR_PLANE = 1.0
+
+FieldRenderer = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+"""field-space origins (R, 3), field-space directions (R, 3), world-frame directions (R, 3) -> rgb (R, 3)."""
 
 
 @dataclass
@@ -38,10 +42,30 @@ class MapInfo:
         return torch.stack((low - margin, high + margin))
 
     def field_rays(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """World-frame rays (R, 3) x2 -> rays in the field's space (NDC-warped for NDC maps)."""
+        """World-frame rays (R, 3) x2 -> rays in the field's space (NDC-warped for NDC maps).
+
+        Raises:
+            ValueError: for an NDC map, when a ray looks away from the scene (``d_z >= 0``: it has no NDC ray).
+        """
         if not self.normalization.ndc:
             return origins, directions
         return ndc_rays_from_world_rays(origins, directions, self.intrinsics, NDC_NEAR_PLANE)
+
+    def render_world_rays(self, origins: torch.Tensor, directions: torch.Tensor, render_field: FieldRenderer, background: torch.Tensor) -> torch.Tensor:
+        """rgb (R, 3) of world-frame rays (R, 3) x2: ``render_field`` on their field-space rays.
+
+        On an NDC map, rays that look away from the forward-facing scene (``d_z >= 0``, which NDC
+        would mirror onto the scene) see none of it: they get ``background`` (3,), as any ray that
+        misses the map does, and are not rendered.
+        """
+        if not self.normalization.ndc:
+            return render_field(origins, directions, directions)
+        colours = background.to(origins.device, origins.dtype).expand(origins.shape[0], 3).clone()
+        facing = rays_facing_scene(directions).nonzero(as_tuple=True)[0]
+        if len(facing):
+            field_origins, field_directions = self.field_rays(origins[facing], directions[facing])
+            colours[facing] = render_field(field_origins, field_directions, directions[facing]).to(colours.dtype)
+        return colours
 
     def to_record(self) -> dict[str, Any]:
         """Plain data for the map file."""

@@ -122,14 +122,19 @@ class NerfPytorchMap(StoredMap):
 
     @torch.no_grad()
     def render_rays(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
-        """rgb (R, 3) of world-frame rays (R, 3) x2, with 64 coarse + 64 fine samples per ray."""
+        """rgb (R, 3) of world-frame rays (R, 3) x2, with 64 coarse + 64 fine samples per ray (the
+        background for rays looking away from an NDC map's scene)."""
         origins = origins.to(self.device, torch.float32)
         directions = directions.to(self.device, torch.float32)
+        background = torch.full((3,), 1.0 if self.white_background else 0.0)
+        return self.info.render_world_rays(origins, directions, self._render_field_rays, background)
+
+    def _render_field_rays(self, field_origins: torch.Tensor, field_directions: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+        """rgb (R, 3) of field-space rays (R, 3) x2 seen along world-frame ``directions`` (R, 3)."""
         views = directions / directions.norm(dim=-1, keepdim=True)
-        field_origins, field_directions = self.info.field_rays(origins, directions)
         near, far = (0.0, 1.0) if self.info.normalization.ndc else (self.info.normalization.near, self.info.normalization.far)
         steps = torch.linspace(0.0, 1.0, COARSE_SAMPLES, device=self.device)
-        depths = (near * (1.0 - steps) + far * steps).expand(len(origins), COARSE_SAMPLES)
+        depths = (near * (1.0 - steps) + far * steps).expand(len(field_origins), COARSE_SAMPLES)
         norm = field_directions.norm(dim=-1)
         _, weights = composite_raw(self._query(self.coarse, field_origins, field_directions, views, depths), depths, norm, self.white_background)
         middles = 0.5 * (depths[:, 1:] + depths[:, :-1])
