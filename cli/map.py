@@ -25,7 +25,7 @@ from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
 from locnerf.field.surface_distance import SurfaceDistanceConfig
 from locnerf.render.image import render_image
-from locnerf.train import BuildConfig, RoomConfig, build_map, evaluate_map, psnr
+from locnerf.train import BuildConfig, RoomConfig, build_map, evaluate_held_out, psnr
 from locnerf.train.surface_layer import surface_distance_of_frames
 
 logger = logging.getLogger(__name__)
@@ -44,7 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument("--steps", type=int, default=BuildConfig().steps, help="most training steps")
     build.add_argument("--voxels", type=int, help=f"grid vertices in all (default {GridFieldConfig().voxels}; RGB-D data {RoomConfig().voxels})")
     build.add_argument("--downscale", type=int, help="image size divisor (default 8 for LLFF, 4 for 7-Scenes, 1 otherwise)")
-    build.add_argument("--split", default="train", help="split to build from (the held-out figures use the test split)")
+    build.add_argument(
+        "--split", default="train", help="split to build from (recorded in the map; the held-out figures use the test split's frames it did not train on)"
+    )
     build.add_argument("--stride", type=int, default=1, help="keep every N-th frame of the split")
     build.add_argument("--no-depth", action="store_true", help="build from colour only even when the data set has depth images")
     build.add_argument(
@@ -63,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     evaluate.add_argument("map", help="map file")
     evaluate.add_argument("data", nargs="?", help="data-set folder (or --data)")
     evaluate.add_argument("--data", dest="data_option", help="data-set folder (instead of the positional argument)")
-    evaluate.add_argument("--split", default="test")
+    evaluate.add_argument("--split", default="test", help="views to score; those the map was built from are scored apart, as train-set figures")
     evaluate.add_argument("--downscale", type=int)
     evaluate.add_argument("--stride", type=int, default=1, help="evaluate every N-th view of the split")
     evaluate.add_argument("--device", default="auto")
@@ -152,12 +154,30 @@ def run_build(args: argparse.Namespace) -> int:
         }
         config = from_flags(BuildConfig, values, {"use_depth": "--no-depth", "calibrate_colour_camera": "--no-colour-calibration"})
         radiance_map = build_map(train, config, device=device, progress=True)
-    held_out = _split_on_map_camera(radiance_map, args.data, args.downscale)
-    scores = evaluate_map(radiance_map.render_rays, held_out, device)
-    radiance_map.metadata.update(heldout_psnr=round(scores["psnr"], 3), heldout_ssim=round(scores["ssim"], 4), heldout_views=scores["views"])
+    test_views = _split_on_map_camera(radiance_map, args.data, args.downscale)
+    scores = evaluate_held_out(radiance_map.render_rays, test_views, radiance_map.reference_poses(), device)
+    radiance_map.metadata.update(train_split=args.split, train_stride=args.stride, train_views=len(train), **_score_metadata(scores, args.split))
     save_map(radiance_map, args.out)
     print(json.dumps({"out": str(args.out), **radiance_map.metadata}, default=str))
     return 0
+
+
+def _score_metadata(scores: dict, split: str) -> dict:
+    """Map metadata of :func:`evaluate_held_out`'s scores of the test split: ``heldout_*`` over the views the
+    map did not train on, ``train_frames_*`` (train-set figures, not held out) over those it did."""
+    metadata = {"heldout_views": scores["views"]}
+    if scores["views"]:
+        metadata.update(heldout_psnr=round(scores["psnr"], 3), heldout_ssim=round(scores["ssim"], 4))
+    if "training_frames" in scores:
+        trained = scores["training_frames"]
+        logger.warning(
+            "map build: %d of the test split's views are frames the map was built from (--split %s); their scores are "
+            "recorded as train_frames_psnr/ssim (train-set figures, not held out)",
+            trained["views"],
+            split,
+        )
+        metadata.update(train_frames_psnr=round(trained["psnr"], 3), train_frames_ssim=round(trained["ssim"], 4), train_frames_views=trained["views"])
+    return metadata
 
 
 def run_eval(args: argparse.Namespace) -> int:
@@ -165,13 +185,16 @@ def run_eval(args: argparse.Namespace) -> int:
     if (args.data is None) == (args.data_option is None):
         raise LocnerfInputError("map eval: name the data set once, as DATA or --data DATA")
     radiance_map = load_map(args.map, device)
-    scores = evaluate_map(
-        radiance_map.render_rays, _split_on_map_camera(radiance_map, args.data or args.data_option, args.downscale, args.split, args.stride), device
-    )
+    views = _split_on_map_camera(radiance_map, args.data or args.data_option, args.downscale, args.split, args.stride)
+    scores = evaluate_held_out(radiance_map.render_rays, views, radiance_map.reference_poses(), device)
     if args.json:
         print(json.dumps(scores))
-    else:
-        print(f"PSNR {scores['psnr']:.2f} dB  SSIM {scores['ssim']:.4f}  over {scores['views']} views")
+        return 0
+    if scores["views"]:
+        print(f"held-out PSNR {scores['psnr']:.2f} dB  SSIM {scores['ssim']:.4f}  over {scores['views']} views")
+    if "training_frames" in scores:
+        trained = scores["training_frames"]
+        print(f"train-set PSNR (not held out) {trained['psnr']:.2f} dB  SSIM {trained['ssim']:.4f}  over {trained['views']} views the map was built from")
     return 0
 
 

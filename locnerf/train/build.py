@@ -22,6 +22,7 @@ import contextlib
 import logging
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field
@@ -43,6 +44,9 @@ from locnerf.train.surface_layer import surface_distance_of_frames
 from locnerf.train.total_variation import grid_total_variation
 
 logger = logging.getLogger(__name__)
+
+TRAINING_POSE_TOLERANCE = 1e-6
+"""Largest difference of any camera-to-world entry (rotation, or translation in map units) at which a view is a training frame."""
 
 
 class ForwardFacingConfig(BaseModel):
@@ -389,3 +393,38 @@ def evaluate_map(render_rays, views: PosedImages, device: torch.device | str = "
         psnrs.append(psnr(rendered, views.images[index]))
         ssims.append(ssim(rendered, views.images[index]))
     return {"psnr": sum(psnrs) / len(psnrs), "ssim": sum(ssims) / len(ssims), "views": len(psnrs)}
+
+
+def training_views(poses: torch.Tensor, reference_poses: torch.Tensor) -> torch.Tensor:
+    """(N,) bool: the views whose pose (N, 4, 4) is one of the map's reference poses (K, 4, 4), the
+    frames it was built from, whatever split, stride or copy of the data set named them.
+
+    A view counts as a training frame when every entry of its camera-to-world matrix is within
+    ``TRAINING_POSE_TOLERANCE`` of a reference pose's (the same reader gives the same frame bit
+    for bit; distinct frames of a real capture differ far more).
+    """
+    if not len(poses) or not len(reference_poses):
+        return torch.zeros(len(poses), dtype=torch.bool)
+    flat, reference = poses[:, :3].reshape(len(poses), 12).double(), reference_poses[:, :3].reshape(len(reference_poses), 12).double()
+    return (torch.cdist(flat, reference.to(flat.device), p=float("inf")) <= TRAINING_POSE_TOLERANCE).any(dim=1)
+
+
+def evaluate_held_out(render_rays, views: PosedImages, reference_poses: torch.Tensor, device: torch.device | str = "cpu") -> dict[str, Any]:
+    """:func:`evaluate_map` of the ``views`` the map was not built from, and apart of those it was.
+
+    A score on frames the map trained on says how well it remembers them, not how well it
+    predicts new views, so the two are never mixed.
+
+    Args:
+        render_rays: the map's ``render_rays``; views: posed images in the map's frame.
+        reference_poses: (K, 4, 4) the map's training poses (``reference_poses()``).
+    Returns:
+        ``{"psnr", "ssim", "views"}`` over the held-out views (``psnr``/``ssim`` None when there is
+        none), plus ``"training_frames": {"psnr", "ssim", "views"}`` when some views are training frames.
+    """
+    trained = training_views(views.T_world_cam, reference_poses)
+    held_out = [int(i) for i in torch.nonzero(~trained).flatten()]
+    scores: dict[str, Any] = evaluate_map(render_rays, views.subset(held_out), device) if held_out else {"psnr": None, "ssim": None, "views": 0}
+    if bool(trained.any()):
+        scores["training_frames"] = evaluate_map(render_rays, views.subset([int(i) for i in torch.nonzero(trained).flatten()]), device)
+    return scores
