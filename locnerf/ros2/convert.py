@@ -20,7 +20,6 @@ from locnerf.geometry.quaternion import matrix_to_quaternion, quaternion_to_matr
 from locnerf.geometry.se3 import make_pose
 from locnerf.geometry.so3 import hat
 from locnerf.messages.codec import DecodeError
-from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2.types import message_class
 from locnerf.sim.events import depth_millimetres
 
@@ -121,23 +120,6 @@ def covariance_from_ros(values, pose: torch.Tensor) -> torch.Tensor:
 
 
 # ---------------------------------------------------------------- images
-def intrinsics_from_camera_info(info: object) -> tuple[PinholeIntrinsics, np.ndarray, np.ndarray]:
-    """sensor_msgs/msg/CameraInfo -> (intrinsics, K (3, 3), distortion coefficients (N,)).
-
-    Raises:
-        DecodeError: ``ros2_camera_info`` for a zero focal length or an unsupported distortion model.
-    """
-    k = np.asarray(info.k, dtype=np.float64).reshape(3, 3)
-    distortion = np.asarray(info.d, dtype=np.float64)
-    if info.distortion_model not in ("", "plumb_bob", "rational_polynomial") and np.any(distortion != 0):
-        raise DecodeError("ros2_camera_info", f"distortion model {info.distortion_model!r}: expected plumb_bob or rational_polynomial")
-    try:
-        intrinsics = PinholeIntrinsics(fx=k[0, 0], fy=k[1, 1], cx=k[0, 2], cy=k[1, 2], width=info.width, height=info.height)
-    except ValueError as error:
-        raise DecodeError("ros2_camera_info", f"camera info K={k.reshape(-1).tolist()}, {info.width}×{info.height}: {error}") from None
-    return intrinsics, k, distortion
-
-
 def pixels_from_image(image: object) -> np.ndarray:
     """sensor_msgs/msg/Image (rgb8, bgr8 or mono8) -> RGB (H, W, 3) uint8.
 
@@ -195,25 +177,3 @@ def pixels_from_compressed(image: object) -> np.ndarray:
     if decoded is None:
         raise DecodeError("ros2_encoding", f"{len(image.data)} bytes of format {image.format!r} could not be decoded")
     return cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
-
-
-def undistort(pixels: np.ndarray, k: np.ndarray, distortion: np.ndarray) -> np.ndarray:
-    """RGB (H, W, 3) uint8 undistorted to the pinhole camera ``k`` (unchanged when all coefficients are 0)."""
-    if not np.any(distortion != 0):
-        return pixels
-    return cv2.undistort(pixels, k, distortion)
-
-
-def undistort_depth(millimetres: np.ndarray, k: np.ndarray, distortion: np.ndarray) -> np.ndarray:
-    """(H, W) uint16 depth undistorted to the pinhole camera ``k`` (unchanged when all coefficients are 0).
-
-    The same pixel mapping as :func:`undistort` (OpenCV's undistortion maps with the camera matrix
-    kept), sampled with nearest neighbour: a depth value is a point's distance along the optical
-    axis, which undistortion does not change, and interpolating across an edge would invent depths
-    between foreground and background. Pixels that map outside the image get 0, no reading.
-    """
-    if not np.any(distortion != 0):
-        return millimetres
-    height, width = millimetres.shape
-    map_x, map_y = cv2.initUndistortRectifyMap(k, distortion, None, k, (width, height), cv2.CV_32FC1)
-    return cv2.remap(millimetres, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)

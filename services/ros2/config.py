@@ -25,6 +25,12 @@ class Ros2Config(BaseModel):
         "raw", description="raw: sensor_msgs/msg/Image; compressed: sensor_msgs/msg/CompressedImage (jpeg, png)."
     )
     camera_info_topic: str = Field("camera/camera_info", description="sensor_msgs/msg/CameraInfo with the intrinsics and distortion of the images.")
+    image_rectified: bool | None = Field(
+        None,
+        description="The images are already rectified (image_proc's image_rect, image_rect_color): taken as they are with the camera info's P, "
+        "never undistorted; False: raw images, undistorted onto P as image_proc does; None: True when a segment of image_topic starts "
+        "with 'image_rect'.",
+    )
     depth_topic: str = Field(
         "",
         description="sensor_msgs/msg/Image of depth (16UC1 or mono16 millimetres, 32FC1 metres) paired with the colour images by stamp, "
@@ -34,6 +40,12 @@ class Ros2Config(BaseModel):
         "",
         description="sensor_msgs/msg/CameraInfo of the depth camera ('' = the depth image is registered to the colour camera: "
         "it has the colour image's size and takes the colour camera's intrinsics and distortion).",
+    )
+    depth_rectified: bool | None = Field(
+        None,
+        description="With depth_camera_info_topic: the depth images are already rectified, as image_rectified for the colour images "
+        "(None: True when a segment of depth_topic starts with 'image_rect', e.g. a RealSense's depth/image_rect_raw). "
+        "A registered depth image follows image_rectified.",
     )
     T_colour_depth: list[list[float]] | None = Field(
         None,
@@ -80,4 +92,22 @@ class Ros2Config(BaseModel):
     def _depth_camera(self) -> Ros2Config:
         if self.T_colour_depth is not None and not self.depth_camera_info_topic:
             raise ValueError("T_colour_depth is set but depth_camera_info_topic is '': a depth image registered to the colour camera has its pose")
+        if self.depth_rectified is not None and not self.depth_camera_info_topic:
+            raise ValueError("depth_rectified is set but depth_camera_info_topic is '': a registered depth image follows image_rectified")
         return self
+
+    @property
+    def images_rectified(self) -> bool:
+        """Whether the colour images (and a depth image registered to them) are already rectified."""
+        return rectified_topic(self.image_topic) if self.image_rectified is None else self.image_rectified
+
+    @property
+    def depth_images_rectified(self) -> bool:
+        """Whether the depth images of depth_camera_info_topic's camera are already rectified."""
+        return rectified_topic(self.depth_topic) if self.depth_rectified is None else self.depth_rectified
+
+
+def rectified_topic(name: str) -> bool:
+    """Whether a topic name says rectified images: a segment starting with ``image_rect`` (image_proc's
+    ``image_rect``, ``image_rect_color``, a RealSense's ``image_rect_raw``, their ``/compressed``)."""
+    return any(segment.startswith("image_rect") for segment in name.split("/"))

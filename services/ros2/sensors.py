@@ -26,9 +26,9 @@ import torch
 from locnerf.geometry.frames import camera_extrinsic_opencv_to_opengl
 from locnerf.messages.codec import DecodeError, encode, encode_image
 from locnerf.messages.schemas import DepthHeader, ImageHeader, Matrix, Odometry
-from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
+from locnerf.ros2.camera_info import Rectification, rectification_from_camera_info
 from locnerf.ros2.naming import check_key
 from locnerf.ros2.types import deserialize
 from services.ros2.config import Ros2Config
@@ -47,8 +47,6 @@ Received = tuple[bytes, bytes | None]
 Arrive = Callable[[bool, str, str, Received], None]
 # image_arrived(key, received): keep the newest colour image for the consumer's thread
 ImageArrived = Callable[[str, Received], None]
-# the intrinsics, K (3, 3) and distortion coefficients (N,) of a CameraInfo
-Camera = tuple[PinholeIntrinsics, np.ndarray, np.ndarray]
 
 DEPTH_SAMPLES_WAITING = 8
 """Depth samples kept untranslated until the consumer takes them (the oldest dropped): about 1 MB
@@ -61,6 +59,41 @@ class DepthImage:
 
     header: DepthHeader
     millimetres: np.ndarray
+
+
+class CameraSlot:
+    """The newest camera of one CameraInfo topic, as a :class:`Rectification`. Drivers repeat the
+    CameraInfo with every image: the undistortion maps are rebuilt only when the calibration changes,
+    and a refused CameraInfo leaves the previous camera in place.
+
+    Args:
+        rectified: the images of this camera are already rectified (image_rect).
+    """
+
+    def __init__(self, rectified: bool) -> None:
+        self.rectified = rectified
+        self.camera: Rectification | None = None
+        self._calibration: tuple | None = None
+
+    def update(self, info: object) -> None:
+        """Take ``info`` (sensor_msgs/msg/CameraInfo).
+
+        Raises:
+            DecodeError: as :func:`~locnerf.ros2.camera_info.rectification_from_camera_info`.
+        """
+        roi = info.roi
+        calibration = (
+            info.width,
+            info.height,
+            info.distortion_model,
+            *(tuple(np.asarray(values, dtype=np.float64).tolist()) for values in (info.d, info.k, info.r, info.p)),
+            info.binning_x,
+            info.binning_y,
+            (roi.x_offset, roi.y_offset, roi.width, roi.height, roi.do_rectify),
+        )
+        if calibration != self._calibration:
+            self.camera = rectification_from_camera_info(info, self.rectified)
+            self._calibration = calibration
 
 
 def open_sample(key: str, received: Received, domain_id: int, fq_name: str, ros_type: str) -> object:
@@ -89,8 +122,8 @@ class Ros2Sensors:
         self.config = config
         self.names: dict[str, str] = {}
         self.image_type = IMAGE if config.image_transport == "raw" else COMPRESSED_IMAGE
-        self._camera: Camera | None = None  # newest colour CameraInfo
-        self._depth_camera: Camera | None = None  # newest depth CameraInfo (unregistered depth)
+        self._camera = CameraSlot(config.images_rectified)  # newest colour CameraInfo
+        self._depth_camera = CameraSlot(config.depth_images_rectified)  # newest depth CameraInfo (unregistered depth)
         self.T_cam_depth: Matrix | None = None if config.T_colour_depth is None else _opengl_offset(config.T_colour_depth)
         # Without a depth topic nothing is waited for: each colour image leaves at once.
         wait = config.depth_max_wait if config.depth_topic else 0.0
@@ -142,12 +175,17 @@ class Ros2Sensors:
         return encode(Odometry(stamp=convert.seconds(message.header.stamp), frame_id=self.config.odom_frame_id, T_odom_body=pose.tolist()))
 
     def camera_info(self, key: str, received: Received) -> None:
-        """Keep the intrinsics and distortion for the following images (nothing to hand on)."""
-        self._camera = convert.intrinsics_from_camera_info(self.open("camera_info", CAMERA_INFO, key, received))
+        """Keep the camera (intrinsics, undistortion) for the following images (nothing to hand on).
+
+        Raises:
+            DecodeError: as :func:`open_sample`; ``ros2_camera_info``, ``ros2_camera_info_unsupported``
+                (:mod:`locnerf.ros2.camera_info`): the previous camera stays.
+        """
+        self._camera.update(self.open("camera_info", CAMERA_INFO, key, received))
 
     def depth_camera_info(self, key: str, received: Received) -> None:
-        """Keep the depth camera's intrinsics and distortion for the following depth images."""
-        self._depth_camera = convert.intrinsics_from_camera_info(self.open("depth_camera_info", CAMERA_INFO, key, received))
+        """Keep the depth camera for the following depth images (as :meth:`camera_info`)."""
+        self._depth_camera.update(self.open("depth_camera_info", CAMERA_INFO, key, received))
 
     def image(self, key: str, received: Received) -> None:
         """A sensor_msgs/Image or CompressedImage: it waits for its depth image (:meth:`paired_image`)."""
@@ -174,11 +212,11 @@ class Ros2Sensors:
         """
         message = self.open("depth", IMAGE, key, received)
         registered = not self.config.depth_camera_info_topic
-        camera = self._camera if registered else self._depth_camera
+        camera = (self._camera if registered else self._depth_camera).camera
         if camera is None:
             info = self.names["camera_info" if registered else "depth_camera_info"]
             raise DecodeError("ros2_no_camera_info", f"depth image before any CameraInfo on {info}")
-        intrinsics, k, distortion = camera
+        intrinsics = camera.intrinsics
         millimetres = convert.millimetres_from_depth_image(message)
         if millimetres.shape != (intrinsics.height, intrinsics.width):
             described = "the colour camera info (the depth image is registered to it)" if registered else "the depth camera info"
@@ -186,7 +224,7 @@ class Ros2Sensors:
                 "ros2_depth_size", f"depth image {millimetres.shape[1]}×{millimetres.shape[0]}, {described} {intrinsics.width}×{intrinsics.height}"
             )
         header = DepthHeader(width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics, T_cam_depth=self.T_cam_depth)
-        self.pairing.add_depth(convert.seconds(message.header.stamp), DepthImage(header, convert.undistort_depth(millimetres, k, distortion)))
+        self.pairing.add_depth(convert.seconds(message.header.stamp), DepthImage(header, camera.depth(millimetres)))
 
     def paired_image(self) -> bytes | None:
         """The waiting colour image as a locnerf image frame (undistorted, RGB, with its depth image when
@@ -199,9 +237,10 @@ class Ros2Sensors:
         if released is None:
             return None
         message, depth = released
-        if self._camera is None:
+        camera = self._camera.camera
+        if camera is None:
             raise DecodeError("ros2_no_camera_info", f"image before any CameraInfo on {self.names['camera_info']}")
-        intrinsics, k, distortion = self._camera
+        intrinsics = camera.intrinsics
         pixels = convert.pixels_from_image(message) if self.image_type == IMAGE else convert.pixels_from_compressed(message)
         if pixels.shape[:2] != (intrinsics.height, intrinsics.width):
             raise DecodeError("ros2_image_size", f"image {pixels.shape[1]}×{pixels.shape[0]}, camera info {intrinsics.width}×{intrinsics.height}")
@@ -214,7 +253,7 @@ class Ros2Sensors:
             intrinsics=intrinsics,
             depth=None if depth is None else depth.header,
         )
-        return encode_image(header, convert.undistort(pixels, k, distortion), None if depth is None else depth.millimetres)
+        return encode_image(header, camera.colour(pixels), None if depth is None else depth.millimetres)
 
 
 def _opengl_offset(T_colour_depth_optical: list[list[float]]) -> Matrix:

@@ -9,24 +9,20 @@ import numpy as np
 import pytest
 import torch
 
-from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
+from locnerf.geometry.se3 import adjoint, make_pose, pose_inverse, se3_exp
 from locnerf.geometry.so3 import so3_exp
 from locnerf.messages.codec import DecodeError
-from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2.convert import (
-    adjoint,
     covariance_from_ros,
     covariance_to_ros,
-    intrinsics_from_camera_info,
     millimetres_from_depth_image,
+    nanoseconds,
     pixels_from_compressed,
     pixels_from_image,
     pose_from_message,
     pose_message,
     seconds,
     time_message,
-    undistort,
-    undistort_depth,
 )
 from locnerf.ros2.types import message_class
 from tests.ros2 import messages
@@ -38,7 +34,10 @@ def test_pose_and_time_round_trip():
     assert torch.allclose(pose_from_message(pose_message(YAW_90)), YAW_90, atol=1e-12)
     message = pose_message(YAW_90)
     assert (message.orientation.z, message.orientation.w) == pytest.approx((math.sqrt(0.5), math.sqrt(0.5)))
-    assert seconds(time_message(12.25)) == 12.25 and time_message(-0.5).sec == -1
+    assert seconds(time_message(12_250_000_000)) == 12.25 and (time_message(-500_000_000).sec, time_message(-500_000_000).nanosec) == (-1, 500_000_000)
+    # Whole nanoseconds cross exactly; float seconds near 1.7e9 s would move this stamp by 72 ns.
+    stamp = time_message(1_700_000_000_123_456_789)
+    assert (stamp.sec, stamp.nanosec) == (1_700_000_000, 123_456_789) and nanoseconds(stamp) == 1_700_000_000_123_456_789
     message.orientation.w = message.orientation.z = 0.0
     with pytest.raises(DecodeError, match="non-zero quaternion"):
         pose_from_message(message)
@@ -122,20 +121,6 @@ def test_compressed_png_is_decoded_to_rgb_and_unknown_formats_raise():
         pixels_from_compressed(compressed)
 
 
-def test_camera_info_gives_intrinsics_and_rejects_a_zero_focal_length():
-    info = messages.camera_info(0.0, PinholeIntrinsics(fx=50.0, fy=51.0, cx=32.0, cy=24.0, width=64, height=48))
-    intrinsics, k, distortion = intrinsics_from_camera_info(info)
-    assert (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width) == (50.0, 51.0, 32.0, 24.0, 64)
-    assert k[0, 0] == 50.0 and not distortion.any()
-    info.k = np.zeros(9)
-    with pytest.raises(DecodeError) as error:
-        intrinsics_from_camera_info(info)
-    assert error.value.kind == "ros2_camera_info"
-    info.k, info.distortion_model, info.d = np.eye(3).reshape(-1), "equidistant", np.ones(4)
-    with pytest.raises(DecodeError, match="equidistant"):
-        intrinsics_from_camera_info(info)
-
-
 def test_depth_images_in_millimetres_are_taken_as_they_are():
     millimetres = np.random.default_rng(2).integers(0, 65536, (4, 5), dtype=np.uint16)
     for encoding in ("16UC1", "mono16"):
@@ -170,23 +155,3 @@ def test_bad_depth_images_raise_with_their_kind():
         with pytest.raises(DecodeError) as error:
             millimetres_from_depth_image(short)
         assert error.value.kind == "ros2_depth_size", field
-
-
-def test_depth_is_undistorted_with_the_colour_mapping_by_nearest_neighbour():
-    """Each depth pixel encodes where it came from (1000 + column + 100 row); the colour undistortion
-    of an image whose channels are the column and the row (bilinear) says where each output pixel
-    samples. Nearest and bilinear sampling of the same mapping agree to one pixel, and nearest
-    sampling invents no value (no depth between an object and its background)."""
-    k = np.array([[60.0, 0.0, 40.0], [0.0, 60.0, 30.0], [0.0, 0.0, 1.0]])
-    distortion = np.array([-0.2, 0.05, 0.001, -0.001, 0.0])
-    rows, columns = np.mgrid[0:60, 0:80]
-    depth = (1000 + columns + 100 * rows).astype(np.uint16)
-    where = undistort(np.stack((columns, rows, np.zeros_like(rows)), axis=-1).astype(np.uint8), k, distortion).astype(np.int64)
-    undistorted = undistort_depth(depth, k, distortion).astype(np.int64)
-    inside = (undistorted > 0) & (where[..., 0] >= 1) & (where[..., 0] <= 78) & (where[..., 1] >= 1) & (where[..., 1] <= 58)
-    assert inside.mean() > 0.8
-    assert np.abs((undistorted[inside] - 1000) % 100 - where[..., 0][inside]).max() <= 1
-    assert np.abs((undistorted[inside] - 1000) // 100 - where[..., 1][inside]).max() <= 1
-    assert set(np.unique(undistorted)) <= set(np.unique(depth)) | {0}
-    assert not np.array_equal(undistorted, depth), "the distortion moves pixels"
-    assert undistort_depth(depth, k, np.zeros(5)) is depth

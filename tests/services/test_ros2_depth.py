@@ -14,7 +14,7 @@ from locnerf.filter.localizer import Localizer, SearchRegion
 from locnerf.messages import keys
 from locnerf.messages.codec import decode_rgbd
 from locnerf.render.camera import PinholeIntrinsics
-from locnerf.ros2.convert import undistort, undistort_depth
+from locnerf.ros2.camera_info import rectification_from_camera_info
 from locnerf.sim.world import ProceduralWorld
 from services.filter_loop.driver import FilterDriver
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
@@ -67,10 +67,10 @@ def test_a_registered_depth_image_arriving_after_its_colour_image_joins_it_in_on
     camera.depth_image(5.504, millimetres)
     steps(ingest, 1)
     header, rgb, depth = decode_rgbd(frames[0])
-    k = np.array([[20.0, 0.0, 16.0], [0.0, 21.0, 12.0], [0.0, 0.0, 1.0]])
-    assert header.stamp == pytest.approx(5.5) and header.intrinsics == COLOUR and np.array_equal(rgb, undistort(pixels, k, distortion))
+    camera = rectification_from_camera_info(messages.camera_info(5.5, COLOUR, distortion=distortion))
+    assert header.stamp == pytest.approx(5.5) and header.intrinsics == COLOUR and np.array_equal(rgb, camera.colour(pixels))
     assert header.depth is not None and header.depth.intrinsics == COLOUR and header.depth.T_cam_depth is None
-    assert np.array_equal(depth, undistort_depth(millimetres, k, distortion)) and not np.array_equal(depth, millimetres)
+    assert np.array_equal(depth, camera.depth(millimetres)) and not np.array_equal(depth, millimetres)
     assert ingest.counters() == {"events_sent": 1, "images_replaced": 0, "images_without_depth": 0} and ingest.bad.total == 0
 
 
