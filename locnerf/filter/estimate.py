@@ -9,7 +9,7 @@ import torch
 from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.motion import PivotNoise
 from locnerf.filter.particles import ParticleSet, weighted_position_spread
-from locnerf.filter.resampling import effective_sample_size
+from locnerf.filter.resampling import effective_sample_size as kish_effective_sample_size
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.geometry.so3 import hat
 
@@ -28,7 +28,8 @@ class ParticleEstimate:
             geodesic L2 mean rotation.
         covariance: (6, 6) float64 covariance in the tangent space of ``pose`` (rotation first).
         spread: largest per-axis weighted std of particle positions (map units).
-        effective_sample_size: ``1 / Σ w²``.
+        effective_sample_size: Kish's ``1 / Σ w²``: of the weights the last update gave before
+            resampling when the estimate comes from :meth:`locnerf.filter.localizer.Localizer.estimate`.
         particle_count: N.
         stage: the annealing stage of the filter.
     """
@@ -41,17 +42,21 @@ class ParticleEstimate:
     stage: AnnealingStage
 
 
-def estimate_from_particles(particles: ParticleSet, stage: AnnealingStage, include: torch.Tensor | None = None) -> ParticleEstimate:
+def estimate_from_particles(
+    particles: ParticleSet, stage: AnnealingStage, include: torch.Tensor | None = None, effective_sample_size: float | None = None
+) -> ParticleEstimate:
     """Compute the estimate of design section 1 from a particle set (in float64).
 
     Args:
         include: (N,) bool, the particles that pose, covariance and spread are computed from
             (their weights renormalised); all when None. Effective sample size and count are
             always those of the whole set.
+        effective_sample_size: the value to report (the localizer passes the last update's, taken
+            before resampling); ``1 / Σ w²`` of the set's weights when None.
     """
     poses = particles.poses.double().cpu()
     weights = particles.weights.double().cpu()
-    effective = effective_sample_size(weights)
+    effective = kish_effective_sample_size(weights) if effective_sample_size is None else effective_sample_size
     if include is not None:
         include = include.cpu()
         poses, weights = poses[include], weights[include] / weights[include].sum()

@@ -130,7 +130,7 @@ class MergeOutcome(enum.StrEnum):
     STALE = "stale"
     """Snapshot from an older epoch or an untraceable generation: nothing changed."""
     DEGENERATE = "degenerate"
-    """No particle had a finite likelihood: weights and particles left unchanged, no resampling."""
+    """No current particle got a finite likelihood: weights and particles left unchanged, no resampling."""
 
 
 @dataclass(frozen=True)
@@ -140,11 +140,31 @@ class MergeReport:
     outcome: MergeOutcome
     generation: int
     effective_sample_size: float
+    """Kish's ``1 / Σ w²`` of the weights the update gave, before resampling (after it they are uniform);
+    of the unchanged weights when nothing was merged."""
     particle_count: int
     stage: AnnealingStage
     injected: int = 0
     rays: int = 0
     """Rays rendered for the update (set by :meth:`Localizer.update`; 0 for merged results of others)."""
+
+
+def _failures_as_impossible(log_likelihoods: torch.Tensor) -> torch.Tensor:
+    """(K,) log-likelihoods with NaN and +inf (failed computations) made −inf, like a failed render; −inf stays −inf."""
+    failed = torch.isnan(log_likelihoods) | (log_likelihoods == torch.inf)
+    return log_likelihoods.masked_fill(failed, -torch.inf)
+
+
+def _per_particle_log_likelihoods(ids: torch.Tensor, log_likelihoods: torch.Tensor, ancestors: torch.Tensor) -> torch.Tensor:
+    """Each current particle's log-likelihood (N,) float64: its ancestor's, from the snapshot's ``ids`` (K,) and
+    ``log_likelihoods`` (K,); particles with no ancestor in the snapshot (injected or re-drawn since, ``ancestors``
+    (N,) :data:`NO_ANCESTOR`) get the median of the finite ones (−inf when there is none)."""
+    order = torch.argsort(ids)
+    per_particle = lookup(ids[order], log_likelihoods[order], ancestors, float("nan"))
+    finite = torch.isfinite(log_likelihoods)
+    stand_in = log_likelihoods[finite].median() if bool(finite.any()) else -torch.inf
+    per_particle[torch.isnan(per_particle) | (ancestors == NO_ANCESTOR)] = stand_in
+    return per_particle
 
 
 class Localizer:
@@ -190,6 +210,7 @@ class Localizer:
         self._keyframe_start_pending = False
         self._last_warped: bool | None = None
         self._start_up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+        self._update_ess: float | None = None
         self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0, "tempered": 0}
 
     # ----------------------------------------------------------------- initialisation
@@ -205,6 +226,7 @@ class Localizer:
         self._lineage.clear()
         self._recovery.reset()
         self._keyframe_start_pending = False
+        self._update_ess = None
 
     def initialize_inerf(self, center: torch.Tensor, translation_half_width: float = 0.1, max_angle_deg: float = 40.0) -> None:
         """Particles spread by the iNeRF protocol around ``center`` (4, 4)."""
@@ -328,14 +350,15 @@ class Localizer:
             poses = poses @ carry.to(self.device, self.dtype)
         return UpdateSnapshot(self.epoch, particles.generation, particles.ids.clone(), poses)
 
-    def _record(self, outcome: MergeOutcome, injected: int = 0) -> MergeReport:
-        """Count ``outcome`` and describe the particles after it."""
+    def _record(self, outcome: MergeOutcome, injected: int = 0, effective: float | None = None) -> MergeReport:
+        """Count ``outcome`` and describe the particles after it (``effective``: the update's ESS before
+        resampling; that of the current weights when None)."""
         particles = self._require_particles()
         self.counters[outcome.value] += 1
         return MergeReport(
             outcome=outcome,
             generation=particles.generation,
-            effective_sample_size=effective_sample_size(particles.weights),
+            effective_sample_size=effective_sample_size(particles.weights) if effective is None else effective,
             particle_count=particles.count,
             stage=self.stage,
             injected=injected,
@@ -354,7 +377,9 @@ class Localizer:
 
         Args:
             ids: (K,) int64 particle ids of the snapshot.
-            log_likelihoods: (K,) log-likelihoods of those particles (−inf allowed; NaN counts as −inf).
+            log_likelihoods: (K,) log-likelihoods of those particles; −inf (a failed render, as
+                workers report it), NaN and +inf count as zero likelihood. When no current particle
+                gets a finite likelihood the update is DEGENERATE: nothing changes, recovery is not fed.
             find_candidates: called, only when this merge injects recovery particles, for the
                 keyframes that match the update's image (e.g. ``lambda: localizer.keyframe_candidates(image, intrinsics)``).
             warped: the likelihoods come from re-projection (:mod:`locnerf.filter.warp`), not from
@@ -380,26 +405,21 @@ class Localizer:
             logger.info("dropping an update: %s", error)
             return self._record(MergeOutcome.STALE)
 
-        log_likelihoods = torch.nan_to_num(log_likelihoods, nan=-torch.inf)
-        order = torch.argsort(ids)
-        per_particle = lookup(ids[order], log_likelihoods[order], ancestors, float("nan"))
-        finite = torch.isfinite(log_likelihoods)
-        if not bool(finite.any()):
-            logger.warning("degenerate update (no finite likelihood): particles and weights kept unchanged")
+        per_particle = _per_particle_log_likelihoods(ids, _failures_as_impossible(log_likelihoods), ancestors)
+        log_weights = particles.log_weights.double().cpu()
+        if not bool(torch.isfinite(log_weights + per_particle).any()):
+            logger.warning("degenerate update (no current particle has a finite likelihood): particles and weights kept unchanged")
             return self._record(MergeOutcome.DEGENERATE)
-        # Particles with no ancestor in the snapshot (injected since) get the median likelihood.
-        missing = torch.isnan(per_particle) | (ancestors == NO_ANCESTOR)
-        per_particle[missing] = log_likelihoods[finite].median()
 
         if warped != self._last_warped:
             self._recovery.reset()
             self._last_warped = warped
-        log_weights = particles.log_weights.double().cpu()
         combined = log_weights + self._temper(log_weights, per_particle)
-        particles.log_weights = normalise_log_weights(combined).to(self.device, self.dtype)
+        weighed = normalise_log_weights(combined).to(self.device, self.dtype)
         plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
-        injected = self._resample(particles, plan, find_candidates)
-        return self._record(MergeOutcome.MERGED, injected)
+        injected = self._resample(particles, weighed, plan, find_candidates)
+        self._update_ess = effective_sample_size(torch.exp(weighed).double())
+        return self._record(MergeOutcome.MERGED, injected, self._update_ess)
 
     def _temper(self, log_weights: torch.Tensor, per_particle: torch.Tensor) -> torch.Tensor:
         """The update's log-likelihoods (N,) times the tempering exponent β (:mod:`locnerf.filter.tempering`)."""
@@ -426,30 +446,33 @@ class Localizer:
         survivors = (particles.parent_ids != NO_ANCESTOR).cpu()
         return float(per_particle[survivors].max() if bool(survivors.any()) else per_particle.max())
 
-    def _resample(self, particles: ParticleSet, plan: InjectionPlan, find_candidates: CandidateSource | None) -> int:
-        """Resample to the stage's particle count, inject recovery particles by ``plan``, start a new generation."""
-        weights = particles.weights.double()
+    def _resample(self, particles: ParticleSet, log_weights: torch.Tensor, plan: InjectionPlan, find_candidates: CandidateSource | None) -> int:
+        """Resample ``particles`` by the update's normalised ``log_weights`` (N,) to the stage's particle count,
+        inject recovery particles by ``plan``, start a new generation. The particles and the stage change
+        only once the draws have succeeded."""
+        weights = torch.exp(log_weights).double()
         # A filter that injects believes it is lost: back to the COARSE stage (full noise and count).
         spread = math.inf if plan.fraction > 0 else weighted_position_spread(particles.positions.double(), weights)
-        self.stage = stage_for_spread(spread, self.config.annealing)
+        stage = stage_for_spread(spread, self.config.annealing)
         resampler = RESAMPLERS[self.config.resampler]
         if self.config.kld.enabled and plan.fraction == 0:
             indices = kld_resample(weights, particles.poses, self.config.kld, self.config.particles, resampler, self.generator).to(self.device)
             target = int(indices.shape[0])
         else:  # a filter that injects is lost: KLD-sampling then keeps the full count
-            target = self.config.particles if self.config.kld.enabled else particle_count(self.stage, self.config.particles, self.config.annealing)
+            target = self.config.particles if self.config.kld.enabled else particle_count(stage, self.config.particles, self.config.annealing)
             indices = resampler(weights, target, self.generator).to(self.device)
         poses = particles.poses[indices]
         parents = particles.ids[indices]
         injected = int(round(plan.fraction * target))
         if injected > 0:
-            estimate = estimate_from_particles(particles, self.stage).pose
+            estimate = estimate_from_particles(dataclasses.replace(particles, log_weights=log_weights), stage).pose
             candidates = find_candidates() if find_candidates is not None else None
             fresh = injection_poses(plan, injected, self.config.recovery, estimate, self.region.bounds(), self.region.up, self.generator, candidates)
             replaced = torch.randperm(target, generator=self.generator)[:injected].to(self.device)
             poses[replaced] = fresh.to(self.device, self.dtype)
             parents[replaced] = NO_ANCESTOR
             self.counters["injected"] += injected
+        self.stage = stage
         self._start_generation(particles, self._fresh_ids(target), parents)
         particles.poses = poses
         particles.parent_ids = parents
@@ -586,6 +609,10 @@ class Localizer:
     def estimate(self) -> ParticleEstimate:
         """The current estimate (weighted mean pose, covariance, spread, ESS).
 
+        Its effective sample size is that of the weights the last merged update gave before
+        resampling (the weights are uniform after it): the filter's health, as a user watches it;
+        the particle count after an initialisation.
+
         Particles injected by recovery at the last resampling or re-drawn by convergence protection
         since have not been weighed by any image yet: until the next update they are left out of
         pose, covariance and spread (otherwise uniform injections would drag the mean towards the
@@ -593,6 +620,5 @@ class Localizer:
         """
         particles = self._require_particles()
         weighed = particles.parent_ids != NO_ANCESTOR
-        if bool(weighed.all()) or not bool(weighed.any()):  # nothing injected, or a fresh initialisation
-            return estimate_from_particles(particles, self.stage)
-        return estimate_from_particles(particles, self.stage, include=weighed)
+        include = None if bool(weighed.all()) or not bool(weighed.any()) else weighed  # None: nothing injected, or a fresh initialisation
+        return estimate_from_particles(particles, self.stage, include=include, effective_sample_size=self._update_ess)

@@ -162,7 +162,10 @@ class PoseEstimate(PoseStamped):
     covariance: Matrix = Field(description="6×6 covariance in the tangent space of the mean, (rotation, translation), metric.")
     particle_count: int = Field(ge=0, description="Particles in the filter.")
     spread: float = Field(ge=0, description="Weighted spread of particle positions, metres.")
-    effective_sample_size: float = Field(ge=0, description="Effective sample size of the weights.")
+    effective_sample_size: float = Field(
+        ge=0,
+        description="Effective sample size 1 / Σ w² of the weights the last merged update gave, before resampling (the particle count after an initialisation).",
+    )
     mode: AnnealingStage = Field(description="Annealing stage of the filter (coarse, refine, super_refine).")
     epoch: int = Field(ge=0, description="Initialisation epoch of the filter.")
 

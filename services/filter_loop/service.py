@@ -146,6 +146,7 @@ class FilterLoop:
         self.images_without_depth = 0
         self.inbox_dropped = 0
         self.odometry_restarts = 0
+        self.merge_failures = 0
         self._stepped_back: list[float] = []
         self._image: Frame | None = None
         self.held_images = ImageHold(config.image_odometry_wait)
@@ -310,7 +311,13 @@ class FilterLoop:
             return []
         if completed is None or not self.running:
             return []
-        report = self.state_machine.merge(completed)
+        try:
+            report = self.state_machine.merge(completed)
+        except Exception:  # a fault of the filter must not end the filter thread: the update is dropped, counted
+            self.merge_failures += 1
+            if self.merge_failures == 1:
+                logger.exception("merging an update failed: dropped (further failures are only counted, merge_failures)")
+            return []
         if report.outcome is MergeOutcome.MERGED:
             self.rates["update"].tick()
             self.latencies.append(completed.latency)
@@ -462,6 +469,7 @@ class FilterLoop:
             "stale_results": merged["stale"],
             "degenerate_updates": merged["degenerate"],
             "updates_tempered": merged["tempered"],
+            "merge_failures": self.merge_failures,
             "images_replaced": self.images_replaced + self.images_replaced_upstream + self.held_images.replaced,
             "images_waited_for_odometry": self.held_images.released,
             "images_odometry_wait_expired": self.held_images.expired,

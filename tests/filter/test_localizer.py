@@ -222,3 +222,60 @@ def test_a_result_computed_before_convergence_protection_does_not_score_the_redr
     scores[redrawn] = 0.0
     localizer.merge(second.epoch, second.generation, second.ids, scores)
     assert torch.allclose(localizer.particles.positions, second.poses[redrawn, :3, 3].expand(8, 3))
+
+
+def test_an_update_whose_every_render_failed_is_degenerate_and_recovery_is_not_fed(generator):
+    """Workers report a failed render as −inf; an update of nothing but −inf (or NaN, +inf) must not count as a measurement."""
+    region = SearchRegion(low=(-1.0, -1.0, -1.0), high=(1.0, 1.0, 1.0))
+    config = LocalizerConfig(particles=100, convergence_protection=NO_PROTECTION, recovery=RecoveryConfig(enabled=True))
+    localizer = Localizer(config, generator, dtype=torch.float64, region=region)
+    localizer.initialize(torch.eye(4, dtype=torch.float64).expand(100, 4, 4).clone())
+    for _ in range(10):
+        snap = localizer.snapshot()
+        localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(100, dtype=torch.float64))
+    failed = torch.full((100,), -torch.inf, dtype=torch.float64)
+    failed[:10], failed[10:20] = float("nan"), torch.inf
+    before = (localizer.particles.poses.clone(), localizer.particles.log_weights.clone(), localizer.particles.generation)
+    snap = localizer.snapshot()
+    report = localizer.merge(snap.epoch, snap.generation, snap.ids, failed)
+    assert report.outcome == "degenerate" and report.injected == 0 and localizer.counters["degenerate"] == 1
+    assert torch.equal(localizer.particles.poses, before[0]) and torch.equal(localizer.particles.log_weights, before[1])
+    assert localizer.particles.generation == before[2]
+    # Had the failure reached the recovery monitor, this update at the usual level would inject.
+    snap = localizer.snapshot()
+    assert localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(100, dtype=torch.float64)).injected == 0
+    assert localizer.counters["injected"] == 0
+
+
+@pytest.mark.parametrize("failures", [(-math.inf, -math.inf), (math.nan, math.nan), (math.nan, -math.inf)])
+def test_a_result_whose_only_finite_scores_belong_to_particles_resampled_away_is_degenerate(generator, failures):
+    """Two updates in flight: the first merged keeps only the descendants of x = 3 and 5; the second
+    failed on exactly those two. No current particle then has a finite likelihood."""
+    localizer = make_localizer(generator, resampler="systematic")
+    localizer.initialize(line_of_particles(8))
+    late = localizer.snapshot()
+    early = localizer.snapshot()
+    favour_three_and_five = torch.full((8,), -1e6, dtype=torch.float64)
+    favour_three_and_five[[3, 5]] = 0.0
+    localizer.merge(early.epoch, early.generation, early.ids, favour_three_and_five)
+    before = (localizer.particles.poses.clone(), localizer.particles.log_weights.clone(), localizer.particles.generation)
+    scores = torch.zeros(8, dtype=torch.float64)
+    scores[[3, 5]] = torch.tensor(failures, dtype=torch.float64)
+    report = localizer.merge(late.epoch, late.generation, late.ids, scores)
+    assert report.outcome == "degenerate" and localizer.counters["degenerate"] == 1
+    assert torch.equal(localizer.particles.poses, before[0]) and torch.equal(localizer.particles.log_weights, before[1])
+    assert localizer.particles.generation == before[2]
+
+
+def test_the_effective_sample_size_reported_is_that_of_the_update_before_resampling(generator):
+    localizer = make_localizer(generator)
+    localizer.initialize(line_of_particles(8))
+    assert localizer.estimate().effective_sample_size == pytest.approx(8.0)
+    scores = torch.linspace(-3, 0, 8, dtype=torch.float64)
+    expected = float(1.0 / (torch.softmax(scores, dim=0) ** 2).sum())  # Kish's 1 / Σ w², uniform prior weights
+    snap = localizer.snapshot()
+    report = localizer.merge(snap.epoch, snap.generation, snap.ids, scores)
+    assert report.effective_sample_size == pytest.approx(expected) and expected < 5.0
+    assert localizer.estimate().effective_sample_size == pytest.approx(expected)  # what the pose message publishes
+    localizer.initialize(line_of_particles(8))
+    assert localizer.estimate().effective_sample_size == pytest.approx(8.0)

@@ -479,3 +479,36 @@ def test_the_filter_process_builds_the_keyframe_index_only_when_its_configuratio
     loop = build_loop(FilterProcessConfig(map="world", localizer=str(with_keyframes), device="cpu"))
     assert len(loop.localizer.keyframes) == 200 and loop.localizer.keyframes.matches(ProceduralWorld.default().default_intrinsics)
     assert build_loop(FilterProcessConfig(map="world", localizer="tracking", device="cpu")).localizer.keyframes is None
+
+
+def test_a_merge_that_raises_is_counted_and_the_filter_goes_on(world, generator, monkeypatch):
+    """A fault inside the filter's merge (injected here: nothing the workers send raises any more) must not end the filter thread."""
+    harness = Harness(world)
+    harness.add_worker("w1")
+    pose = world.sample_camera_pose(generator)
+    harness.loop.handle_image(image_payload(world, 0.0, pose))
+    harness.tick()
+
+    def broken_merge(*args, **kwargs):
+        raise RuntimeError("a fault inside the filter")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(harness.loop.localizer, "merge", broken_merge)
+        harness.answer(harness.requests.pop()[1])
+    assert harness.loop.counters()["merge_failures"] == 1 and harness.loop.counters()["updates_merged"] == 0
+    harness.collect(harness.loop.handle_odometry(odometry_payload(0.0, torch.eye(4, dtype=torch.float64))))
+    harness.loop.handle_image(image_payload(world, 0.0, pose))
+    harness.tick()
+    harness.answer(harness.requests.pop()[1])
+    assert harness.loop.counters()["updates_merged"] == 1 and len(harness.poses) == 1
+
+
+def test_the_published_effective_sample_size_is_the_updates_before_resampling(world, generator):
+    harness = Harness(world)
+    harness.add_worker("w1")
+    harness.loop.handle_image(image_payload(world, 0.0, world.sample_camera_pose(generator)))
+    harness.tick()
+    harness.answer(harness.requests.pop()[1])
+    harness.collect(harness.loop.handle_odometry(odometry_payload(0.0, torch.eye(4, dtype=torch.float64))))
+    published = harness.poses[-1]
+    assert published.effective_sample_size < 0.5 * published.particle_count  # a global start weighed by one image is far from uniform
