@@ -58,7 +58,7 @@ from locnerf.filter.resampling import multinomial_resample, systematic_resample
 from locnerf.filter.warp import render_reference, warp_log_likelihoods
 from locnerf.geometry import se3_exp
 from locnerf.geometry.averaging import geodesic_rotation_mean
-from locnerf.maps.source import open_map
+from locnerf.maps.source import map_identity, open_map
 from locnerf.messages.codec import decode, decode_image, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, UpdateRequest, UpdateResult
 from locnerf.render.camera import PinholeIntrinsics
@@ -176,6 +176,7 @@ def build_targets(
     request = UpdateRequest(
         request_id="bench",
         shard=0,
+        map_checksum=map_identity(radiance_map),
         epoch=0,
         generation=0,
         ids=list(range(particles)),

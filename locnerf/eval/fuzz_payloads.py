@@ -8,7 +8,7 @@ ways: their kind is what :func:`locnerf.messages.codec.decode` says, and a flip 
 is reported as ``accepted`` (a failure: header flips never give a valid message).
 
 Targets (:data:`TARGETS`) are the keys each service subscribes to: the filter's odometry, images,
-update results and both commands; a worker's update requests; an ingest's ``filter/status`` (which
+update results and refusals and both commands; a worker's update requests; an ingest's ``filter/status`` (which
 it reads while it waits for workers). Every payload is invalid: none re-initialises the filter or
 makes a worker render.
 """
@@ -36,10 +36,13 @@ from locnerf.messages.schemas import (
     ImageHeader,
     InitialPoseCommand,
     Odometry,
+    RefusalReason,
+    UpdateRefusal,
     UpdateRequest,
     UpdateResult,
 )
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.sim.world import ProceduralWorld
 
 ACCEPTED = "accepted"
 """Expected kind of a payload the codec took for a valid message (a failure of the fuzz run)."""
@@ -50,6 +53,7 @@ IMAGE_LIMIT_PIXELS = 4096 * 4096
 _EYE = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
 _COVARIANCE = [[1e-3 if i == j else 0.0 for j in range(6)] for i in range(6)]
 _INTRINSICS = PinholeIntrinsics(fx=20.0, fy=20.0, cx=8.0, cy=6.0, width=16, height=12)
+_MAP_CHECKSUM = ProceduralWorld.default().checksum  # the fuzzed worker's map: a request's damage, not its map, is what it refuses
 # msgpack prefixes declaring 2^32 − 1 entries or bytes: map32, array32, str32, bin32, ext32.
 _HUGE_MARKERS = (b"\xdf\xff\xff\xff\xff", b"\xdd\xff\xff\xff\xff", b"\xdb\xff\xff\xff\xff", b"\xc6\xff\xff\xff\xff", b"\xc9\xff\xff\xff\xff\x01")
 
@@ -206,12 +210,18 @@ _result = st.builds(
     st.integers(0, 8),
     st.floats(0, 10),
 )
+_refusal = st.builds(
+    lambda rid, reason: UpdateRefusal(request_id=rid, shard=0, worker_id="fuzz", reason=reason, detail="fuzz", map_checksum=_MAP_CHECKSUM),
+    st.text(max_size=16),
+    st.sampled_from(list(RefusalReason)),
+)
 _initial_pose = st.builds(lambda s: InitialPoseCommand(stamp=s, T_world_cam=_EYE, covariance=_COVARIANCE), _stamps)
 _global = st.builds(lambda s: GlobalLocalizationCommand(stamp=s), _stamps)
 _request = st.builds(
     lambda rid, n: UpdateRequest(
         request_id=rid,
         shard=0,
+        map_checksum=_MAP_CHECKSUM,
         epoch=0,
         generation=0,
         ids=list(range(n)),
@@ -224,7 +234,9 @@ _request = st.builds(
     st.integers(1, 8),
 )
 _status = st.builds(
-    lambda s, w: FilterStatus(stamp=s, state=FilterState.RUNNING, rates_hz={"pose": 15.0}, update_latency_s=None, in_flight=0, workers=w, counters={}),
+    lambda s, w: FilterStatus(
+        stamp=s, state=FilterState.RUNNING, rates_hz={"pose": 15.0}, update_latency_s=None, in_flight=0, workers=w, map_checksum="0" * 64, counters={}
+    ),
     _stamps,
     st.lists(st.text(max_size=8), max_size=3),
 )
@@ -298,6 +310,13 @@ def _result_payloads() -> st.SearchStrategy[Hostile]:
     )
 
 
+def _refusal_payloads() -> st.SearchStrategy[Hostile]:
+    return st.one_of(
+        _envelope_damage(UpdateRefusal, _refusal)
+        + [_refusal.map(lambda r: Hostile("unknown_request_id", _envelope(SCHEMA_VERSION, "UpdateRefusal", r.model_dump()), "unknown_request"))]
+    )
+
+
 def _initial_pose_payloads() -> st.SearchStrategy[Hostile]:
     pose = lambda strategy: strategy.map(lambda p: {"T_world_cam": p})  # noqa: E731
     return st.one_of(
@@ -341,6 +360,7 @@ TARGETS: tuple[FuzzTarget, ...] = (
     FuzzTarget("filter", keys.ODOMETRY, (), "bad_", _FILTER_DROPS, _odometry_payloads()),
     FuzzTarget("filter", keys.IMAGE, (), "bad_", _FILTER_DROPS + ("images_replaced",), _image_payloads()),
     FuzzTarget("filter", keys.UPDATE_RESULT, (), "bad_", _FILTER_DROPS, _result_payloads()),
+    FuzzTarget("filter", keys.UPDATE_REFUSAL, (), "bad_", _FILTER_DROPS, _refusal_payloads()),
     FuzzTarget("filter", keys.INITIAL_POSE, (), "bad_command_", _FILTER_DROPS, _initial_pose_payloads()),
     FuzzTarget("filter", keys.GLOBAL_LOCALIZATION, (), "bad_command_", _FILTER_DROPS, st.one_of(_envelope_damage(GlobalLocalizationCommand, _global))),
     FuzzTarget("worker", keys.UPDATE_REQUEST, (("worker_id", "fuzzed"),), "bad_", ("inbox_dropped",), _request_payloads()),

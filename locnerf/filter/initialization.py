@@ -61,6 +61,26 @@ def rotation_about_axis(axis: torch.Tensor, angles: torch.Tensor) -> torch.Tenso
     return axis_angle_to_matrix(axis.expand(angles.shape[0], 3), angles)
 
 
+def level_rotation(up: tuple[float, float, float]) -> torch.Tensor:
+    """A level camera for a world whose gravity-opposite axis is ``up``: (3, 3) float64 ``R_world_cam``.
+
+    The camera (OpenGL axes: x right, y up, z backwards) has its y axis along ``up``, so it looks
+    horizontally (along −z); it is the shortest turn taking the world's y onto ``up`` (the identity
+    for y-up worlds, a half turn about x for −y). Its heading is arbitrary: callers turn it about ``up``.
+    """
+    axis = torch.tensor(up, dtype=torch.float64)
+    norm = torch.linalg.vector_norm(axis)
+    if not bool(torch.isfinite(axis).all()) or float(norm) < 1e-9:
+        raise ValueError(f"up={up}: expected a finite non-zero 3-vector")
+    axis = axis / norm
+    y = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64)
+    turn = torch.linalg.cross(y, axis)  # sin(angle) · turn axis
+    sine, cosine = torch.linalg.vector_norm(turn), torch.dot(y, axis)
+    if float(sine) < 1e-12:
+        return torch.eye(3, dtype=torch.float64) if float(cosine) > 0 else torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))
+    return axis_angle_to_matrix(turn / sine, torch.atan2(sine, cosine))
+
+
 def global_particles(
     center: torch.Tensor,
     count: int,
@@ -121,14 +141,14 @@ def uniform_particles(
 
     Args:
         bounds: (2, 3) min and max corners.
-        tilt: (3, 3) rotation giving the known roll/pitch (identity when None).
+        tilt: (3, 3) rotation giving the known roll/pitch; level (:func:`level_rotation` of ``up``) when None.
     Returns:
         (count, 4, 4) float64.
     """
     b = bounds.double().cpu()
     if tuple(b.shape) != (2, 3) or not torch.isfinite(b).all() or (b[1] < b[0]).any():
         raise ValueError(f"bounds: expected finite (2, 3) [min, max] corners with min <= max, got {b.tolist()}")
-    base = torch.eye(3, dtype=torch.float64) if tilt is None else tilt.double().cpu()
+    base = level_rotation(up) if tilt is None else tilt.double().cpu()
     axis = torch.tensor(up, dtype=torch.float64)
     yaw = rotation_about_axis(axis / axis.norm(), uniform(count, -math.pi, math.pi, generator))
     positions = b[0] + (b[1] - b[0]) * torch.rand(count, 3, dtype=torch.float64, generator=generator)

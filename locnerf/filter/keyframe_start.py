@@ -1,7 +1,8 @@
 """A global start seeded by place recognition: the first image says where to put the particles.
 
 A uniform global start (:meth:`locnerf.filter.localizer.Localizer.initialize_uniform`) spreads the
-particles over the search region with a guessed tilt (level with the ground). Where the cameras
+particles over the search region with a guessed tilt: level, the camera's y axis along the map's
+``up`` (:func:`locnerf.filter.initialization.level_rotation`). Where the cameras
 are tilted, as on an object-centred map (the lego orbit looks down at the object from 7° to 47° of
 elevation, its ``up`` axis is z), no uniform particle sees what the camera sees and the filter
 waits for kidnapping recovery to land near the truth by chance. With ``share`` > 0 the first

@@ -245,7 +245,8 @@ class Localizer:
         self.initialize(initialization.gaussian_particles(mean, covariance, self.config.particles, self.generator))
 
     def initialize_uniform(self, region: SearchRegion, tilt: torch.Tensor | None = None) -> None:
-        """Positions uniform in the region, yaw uniform about its up axis, fixed tilt (roll/pitch).
+        """Positions uniform in the region, yaw uniform about its up axis, fixed tilt (roll/pitch): ``tilt``
+        (3, 3), or level when None (the camera's y axis along ``region.up``, looking horizontally).
 
         With ``keyframe_start.share`` > 0 and keyframes, the next image seeds part of them
         (:meth:`seed_from_image`)."""

@@ -18,7 +18,7 @@ from pydantic import BaseModel, ValidationError
 
 from locnerf.messages.schemas import WIRE_TYPES, ImageHeader
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 IMAGE_ENCODINGS = ("rgb8", "bgr8")
 _LENGTH = struct.Struct(">I")
 

@@ -35,7 +35,8 @@ WORKER_STATUS = Topic("worker/status/{worker_id}", schemas.ServiceStatus.__name_
 INGEST_STATUS = Topic("ingest/status/{ingest_id}", schemas.ServiceStatus.__name__, "sensor_ingest", "events sent, bad messages by kind, 1 Hz")
 UPDATE_REQUEST = Topic("update/request/{worker_id}", schemas.UpdateRequest.__name__, "filter_loop", "one shard for one worker")
 UPDATE_RESULT = Topic("update/result", schemas.UpdateResult.__name__, "nerf_worker", "log-likelihoods of a shard")
-WORKER_ALIVE = Topic("alive/worker/{worker_id}/{device}", "liveliness token", "nerf_worker", "a live worker and its device")
+UPDATE_REFUSAL = Topic("update/refusal", schemas.UpdateRefusal.__name__, "nerf_worker", "a shard the worker did not compute: wrong map, bad request or failure")
+WORKER_ALIVE = Topic("alive/worker/{worker_id}/{device}/{map_checksum}", "liveliness token", "nerf_worker", "a live worker, its device and its map's checksum")
 INITIAL_POSE = Topic("command/initial_pose", schemas.InitialPoseCommand.__name__, "operator (locnerf send)", "re-initialise around a pose")
 GLOBAL_LOCALIZATION = Topic("command/global_localization", schemas.GlobalLocalizationCommand.__name__, "operator (locnerf send)", "re-initialise over the map")
 
@@ -50,6 +51,7 @@ TABLE: tuple[Topic, ...] = (
     INGEST_STATUS,
     UPDATE_REQUEST,
     UPDATE_RESULT,
+    UPDATE_REFUSAL,
     WORKER_ALIVE,
     INITIAL_POSE,
     GLOBAL_LOCALIZATION,
@@ -65,15 +67,24 @@ def key(robot_id: str, topic: Topic, **fields: str) -> str:
 
 def workers_alive_pattern(robot_id: str) -> str:
     """Key expression matching every worker liveliness token of ``robot_id``."""
-    return key(robot_id, WORKER_ALIVE, worker_id="*", device="*")
+    return key(robot_id, WORKER_ALIVE, worker_id="*", device="*", map_checksum="*")
 
 
-def parse_worker_token(token_key: str) -> tuple[str, str]:
-    """``locnerf/<robot>/alive/worker/<id>/<device>`` -> (worker id, device)."""
+@dataclass(frozen=True)
+class WorkerToken:
+    """What a worker's liveliness token announces."""
+
+    worker_id: str
+    device: str
+    map_checksum: str
+
+
+def parse_worker_token(token_key: str) -> WorkerToken:
+    """``locnerf/<robot>/alive/worker/<id>/<device>/<map_checksum>`` -> its worker id, device and map checksum."""
     parts = token_key.split("/")
-    if len(parts) != 6 or parts[2:4] != ["alive", "worker"]:
-        raise ValueError(f"{token_key!r}: expected locnerf/<robot>/alive/worker/<worker_id>/<device>")
-    return parts[4], parts[5]
+    if len(parts) != 7 or parts[2:4] != ["alive", "worker"]:
+        raise ValueError(f"{token_key!r}: expected locnerf/<robot>/alive/worker/<worker_id>/<device>/<map_checksum>")
+    return WorkerToken(*parts[4:])
 
 
 def markdown_table() -> str:

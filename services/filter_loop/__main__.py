@@ -16,7 +16,7 @@ from locnerf.config import PRESETS, load_config, preset
 from locnerf.devices import resolve_device
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
 from locnerf.maps.keyframes import recovery_keyframes
-from locnerf.maps.source import open_map
+from locnerf.maps.source import map_identity, open_map
 from services.filter_loop.driver import FilterDriver
 from services.filter_loop.service import FilterLoop, FilterLoopConfig
 from services.ros2.config import Ros2Config
@@ -58,7 +58,7 @@ def build_loop(config: FilterProcessConfig) -> FilterLoop:
     localizer_settings = localizer_config(config.localizer)
     keyframes = recovery_keyframes(localizer_settings, radiance_map, radiance_map.default_intrinsics, config.seed)
     localizer = Localizer(localizer_settings, generator, device=device, region=region, keyframes=keyframes)
-    return FilterLoop(config.robot_id, localizer, normalization, region, config.loop, time.monotonic)
+    return FilterLoop(config.robot_id, localizer, normalization, region, config.loop, time.monotonic, map_identity(radiance_map))
 
 
 def serve(loop: FilterLoop, bus: Bus, stop: threading.Event, ros2: Ros2Config | None = None) -> None:

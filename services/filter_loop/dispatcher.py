@@ -1,10 +1,15 @@
-"""Sharding updates over the live workers: send, retry on a vanished worker, give up on timeout.
+"""Sharding updates over the live workers: send, retry on a vanished or failing worker, give up on timeout.
 
 Up to ``max_in_flight`` updates run at once (so a worker has the next request queued while the
-filter merges the previous one). Each update's particles are split into one shard per live worker; a
-shard whose worker's liveliness token disappears is sent again to another live worker (or to the
-next one that appears); when every shard has answered, the results are joined for the merge. An
-update that is not complete after ``timeout`` seconds is abandoned and counted.
+filter merges the previous one). Only workers whose liveliness token announces the filter's map
+(its checksum) are used; the others are counted, logged once each and listed. Each update's
+particles are split into one shard per live worker; a shard whose worker's liveliness token
+disappears, or whose worker refuses it as ``failed`` or ``wrong_map``, is sent again to another live
+worker (one it has not been sent to, while there is one; or to the next one that appears), at most
+``max_shard_attempts`` sends in all, after which the update is given up. A shard refused as
+``bad_request`` gives the update up at once (every worker would refuse it). When every shard has
+answered, the results are joined for the merge. An update that is not complete after ``timeout``
+seconds is abandoned and counted.
 """
 
 from __future__ import annotations
@@ -18,7 +23,8 @@ from dataclasses import dataclass, field
 import torch
 
 from locnerf.filter.localizer import UpdateSnapshot
-from locnerf.messages.schemas import DepthRequest, UpdateRequest, UpdateResult, WarpRequest
+from locnerf.messages.keys import WorkerToken
+from locnerf.messages.schemas import DepthRequest, RefusalReason, UpdateRefusal, UpdateRequest, UpdateResult, WarpRequest
 from locnerf.render.camera import PinholeIntrinsics
 
 logger = logging.getLogger(__name__)
@@ -28,6 +34,7 @@ logger = logging.getLogger(__name__)
 class _Shard:
     request: UpdateRequest
     worker: str | None
+    tried: list[str] = field(default_factory=list)  # the workers it was sent to, in order
     log_likelihoods: list[float] | None = None
 
 
@@ -73,16 +80,24 @@ class UpdateDispatcher:
     """Tracks live workers and the update in flight.
 
     Args:
+        map_checksum: identity of the filter's map; workers announcing another are not used.
         timeout: seconds after which an incomplete update is abandoned.
         max_in_flight: updates allowed in flight at once.
+        max_shard_attempts: sends of one shard (to a worker that then vanished or refused it) before its update is given up.
     """
 
-    def __init__(self, timeout: float, max_in_flight: int = 2) -> None:
+    def __init__(self, map_checksum: str, timeout: float, max_in_flight: int = 2, max_shard_attempts: int = 3) -> None:
         if max_in_flight < 1:
             raise ValueError(f"max_in_flight {max_in_flight}: expected >= 1")
+        if max_shard_attempts < 1:
+            raise ValueError(f"max_shard_attempts {max_shard_attempts}: expected >= 1")
+        self.map_checksum = map_checksum
         self.timeout = timeout
         self.max_in_flight = max_in_flight
+        self.max_shard_attempts = max_shard_attempts
         self.workers: dict[str, str] = {}
+        self.other_map: dict[str, str] = {}  # live workers holding another map -> their map's checksum
+        self._warned_other_map: set[str] = set()
         self.pending: dict[str, _Update] = {}
         self.counters: collections.Counter[str] = collections.Counter()
         self._turn = itertools.count()
@@ -99,28 +114,63 @@ class UpdateDispatcher:
         """Shards sent and not answered."""
         return sum(s.log_likelihoods is None for update in self.pending.values() for s in update.shards)
 
-    def _next_worker(self) -> str | None:
-        if not self.workers:
+    def _next_worker(self, tried: list[str]) -> str | None:
+        """A live worker, in turn among those not in ``tried`` while there are any; None when none is live."""
+        untried = sorted(name for name in self.workers if name not in tried)
+        names = untried or sorted(self.workers)
+        if not names:
             return None
-        names = sorted(self.workers)
         return names[next(self._turn) % len(names)]
 
-    def worker_changed(self, worker_id: str, device: str, alive: bool) -> list[AddressedRequest]:
-        """Record a liveliness change; returns shards re-sent because of it."""
+    def worker_changed(self, token: WorkerToken, alive: bool) -> list[AddressedRequest]:
+        """Record a liveliness change; returns shards re-sent because of it. A token announcing another map
+        than the filter's is counted (``workers_on_another_map``) and listed in :attr:`other_map`, and its worker is not used."""
+        if token.map_checksum != self.map_checksum:
+            if alive:
+                self._note_other_map(token.worker_id, token.map_checksum)
+            else:
+                self.other_map.pop(token.worker_id, None)
+            return []
         if alive:
-            self.workers[worker_id] = device
+            self.workers[token.worker_id] = token.device
         else:
-            self.workers.pop(worker_id, None)
+            self.workers.pop(token.worker_id, None)
         resend = []
-        for update in self.pending.values():
+        for update in list(self.pending.values()):
             for shard in update.shards:
+                if update.request_id not in self.pending:
+                    break
                 if shard.log_likelihoods is None and (shard.worker is None or shard.worker not in self.workers):
-                    shard.worker = self._next_worker()
-                    if shard.worker is not None:
-                        self.counters["shards_retried"] += 1
-                        logger.info("re-sending shard %d of update %s to %s", shard.request.shard, update.request_id, shard.worker)
-                        resend.append((shard.worker, shard.request))
+                    resend += self._resend(update, shard)
         return resend
+
+    def _note_other_map(self, worker_id: str, map_checksum: str) -> None:
+        """Leave ``worker_id`` out: it holds map ``map_checksum`` (logged once per worker)."""
+        self.workers.pop(worker_id, None)
+        self.other_map[worker_id] = map_checksum
+        self.counters["workers_on_another_map"] += 1
+        if worker_id not in self._warned_other_map:
+            self._warned_other_map.add(worker_id)
+            logger.warning("worker %s holds map %s, not the filter's map %s: it is left out", worker_id, map_checksum, self.map_checksum)
+
+    def _resend(self, update: _Update, shard: _Shard) -> list[AddressedRequest]:
+        """Send ``shard`` again to another live worker: [(worker, request)], or [] when none is live (the shard waits
+        for the next one) or when it was sent ``max_shard_attempts`` times already (then ``update`` is given up)."""
+        if len(shard.tried) >= self.max_shard_attempts:
+            self._give_up(update, f"shard {shard.request.shard} was sent {len(shard.tried)} times ({', '.join(shard.tried)}) without a result")
+            return []
+        shard.worker = self._next_worker(shard.tried)
+        if shard.worker is None:
+            return []
+        shard.tried.append(shard.worker)
+        self.counters["shards_retried"] += 1
+        logger.info("re-sending shard %d of update %s to %s", shard.request.shard, update.request_id, shard.worker)
+        return [(shard.worker, shard.request)]
+
+    def _give_up(self, update: _Update, why: str) -> None:
+        del self.pending[update.request_id]
+        self.counters["updates_given_up"] += 1
+        logger.warning("giving up update %s: %s", update.request_id, why)
 
     def start(
         self,
@@ -151,6 +201,7 @@ class UpdateDispatcher:
         ids = snapshot.ids.cpu()
         common = {
             "request_id": update.request_id,
+            "map_checksum": self.map_checksum,
             "epoch": snapshot.epoch,
             "generation": snapshot.generation,
             "pixels": pixels.cpu().tolist(),
@@ -164,7 +215,7 @@ class UpdateDispatcher:
         parts = torch.tensor_split(torch.arange(len(ids)), min(len(names), len(ids)))
         for index, (part, worker) in enumerate(zip(parts, names)):
             request = UpdateRequest(shard=index, ids=ids[part].tolist(), poses=poses[part].tolist(), **common)
-            update.shards.append(_Shard(request, worker))
+            update.shards.append(_Shard(request, worker, [worker]))
         self.pending[update.request_id] = update
         if len(self._issued) == self._issued.maxlen:
             self._issued_set.discard(self._issued[0])
@@ -206,6 +257,36 @@ class UpdateDispatcher:
             intrinsics=update.shards[0].request.intrinsics,
             warped=update.shards[0].request.warp is not None,
         )
+
+    def refused(self, refusal: UpdateRefusal) -> list[AddressedRequest]:
+        """Act on a worker's refusal at once: the shard re-sent elsewhere (``failed``, ``wrong_map``, whose worker is
+        then left out as on another map) or the update given up (``bad_request``, or a shard out of attempts);
+        returns the shards re-sent. A refusal of a shard already answered or sent elsewhere is counted as late.
+
+        Raises:
+            UnknownRequestError: a refusal for a request id never issued (or forgotten, see ``ISSUED_MEMORY``).
+            ValueError: a refusal of a shard the pending update does not have.
+        """
+        update = self.pending.get(refusal.request_id)
+        if update is None:
+            if refusal.request_id not in self._issued_set:
+                raise UnknownRequestError(f"refusal from {refusal.worker_id} for request {refusal.request_id!r}, which this filter never issued")
+            self.counters["late_results"] += 1
+            return []
+        if refusal.shard >= len(update.shards):
+            raise ValueError(f"refusal of shard {refusal.shard} from {refusal.worker_id}: update {refusal.request_id} has {len(update.shards)} shards")
+        shard = update.shards[refusal.shard]
+        if shard.log_likelihoods is not None or shard.worker != refusal.worker_id:
+            self.counters["late_results"] += 1
+            return []
+        self.counters[f"shards_refused_{refusal.reason.value}"] += 1
+        logger.warning("worker %s refused shard %d of update %s (%s): %s", refusal.worker_id, refusal.shard, update.request_id, refusal.reason, refusal.detail)
+        if refusal.reason is RefusalReason.BAD_REQUEST:
+            self._give_up(update, f"worker {refusal.worker_id} refused shard {refusal.shard} as a bad request")
+            return []
+        if refusal.reason is RefusalReason.WRONG_MAP:
+            self._note_other_map(refusal.worker_id, refusal.map_checksum)
+        return self._resend(update, shard)
 
     def expire(self, now: float) -> int:
         """Abandon the updates older than ``timeout``; returns how many."""

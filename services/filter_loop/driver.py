@@ -1,6 +1,6 @@
 """The filter thread's schedule on the bus: odometry goes before any other work.
 
-Zenoh callbacks only enqueue (design section 3): odometry into the urgent lane; update results,
+Zenoh callbacks only enqueue (design section 3): odometry into the urgent lane; update results and refusals,
 commands, liveliness changes and image arrivals into the normal lane (the image itself goes into a
 one-slot buffer, newest only). One thread calls :meth:`FilterDriver.step` in a loop, which
 
@@ -88,6 +88,7 @@ class FilterDriver:
         self._handlers: dict[str, Callable[[str, Any], Outgoing]] = {
             "odometry": lambda key, payload: self._translated(key, payload, "odometry", loop.handle_odometry),
             "result": lambda _key, payload: loop.handle_result(payload),
+            "refusal": lambda _key, payload: loop.handle_refusal(payload),
             "initial_pose": lambda key, payload: self._translated(key, payload, "initial_pose", loop.handle_initial_pose),
             "global_localization": lambda key, payload: self._translated(key, payload, "global_localization", loop.handle_global_localization),
             "camera_info": lambda key, payload: self._translated(key, payload, "camera_info", lambda _none: []),
@@ -103,6 +104,7 @@ class FilterDriver:
         robot = self.loop.robot_id
         topics = {
             "result": keys.UPDATE_RESULT,
+            "refusal": keys.UPDATE_REFUSAL,
             "initial_pose": keys.INITIAL_POSE,
             "global_localization": keys.GLOBAL_LOCALIZATION,
         }

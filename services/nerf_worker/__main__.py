@@ -15,8 +15,8 @@ from locnerf.devices import resolve_device
 from locnerf.maps.source import open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, encode
-from locnerf.messages.schemas import UpdateRequest
-from services.nerf_worker.service import NerfWorker, RequestError
+from locnerf.messages.schemas import RefusalReason, UpdateRefusal, UpdateRequest
+from services.nerf_worker.service import NerfWorker
 from services.runtime import BadMessages, StatusPublisher, default_instance_id, limit_torch_threads, load_service_config, service_main, stop_on_signals
 from services.transport import Bus, Inbox, TransportConfig, open_bus
 
@@ -29,7 +29,10 @@ class WorkerConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     robot_id: str = Field("robot", description="Robot whose keys (locnerf/<robot_id>/...) the worker serves.")
-    map: str = Field("world", description="Map to load: 'world' (the procedural world) or a map file path.")
+    map: str = Field(
+        "world",
+        description="Map to load: 'world' (the procedural world) or a map file path; the filter's map, else the filter leaves this worker out.",
+    )
     device: str = Field("auto", description="auto, cpu, cuda or cuda:N.")
     worker_id: str = Field("", description="Name of this worker (empty: <hostname>-<pid>).")
     torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
@@ -46,30 +49,38 @@ class WorkerConfig(BaseModel):
 def serve(worker: NerfWorker, bus: Bus, robot_id: str, device_name: str, stop: threading.Event) -> BadMessages:
     """Answer requests addressed to this worker until ``stop`` is set; returns the bad-message counts.
 
-    Publishes a ServiceStatus (requests answered, bad messages by kind, inbox drops) every second."""
+    Every decoded request is answered with its result or an UpdateRefusal (a request for another map and a
+    bad request are also counted as bad messages, ``bad_wrong_map`` and ``bad_bad_request``; a failed one as
+    ``requests_failed``). Publishes a ServiceStatus (requests answered, bad messages by kind, failures, inbox
+    drops) every second. The liveliness token announces the worker's device and map checksum."""
     bad = BadMessages("nerf_worker")
     inbox: Inbox[bytes] = Inbox(capacity=8)
     status = StatusPublisher(bus.publish, keys.key(robot_id, keys.WORKER_STATUS, worker_id=worker.worker_id), "nerf_worker", worker.worker_id, bad)
-    answered = 0
+    answered = failed = 0
     subscription = bus.subscribe(keys.key(robot_id, keys.UPDATE_REQUEST, worker_id=worker.worker_id), lambda _k, payload: inbox.put(payload))
-    token = bus.declare_token(keys.key(robot_id, keys.WORKER_ALIVE, worker_id=worker.worker_id, device=device_name))
-    result_key = keys.key(robot_id, keys.UPDATE_RESULT)
-    logger.info("worker %s serving robot %s", worker.worker_id, robot_id)
+    token = bus.declare_token(keys.key(robot_id, keys.WORKER_ALIVE, worker_id=worker.worker_id, device=device_name, map_checksum=worker.map_checksum))
+    result_key, refusal_key = keys.key(robot_id, keys.UPDATE_RESULT), keys.key(robot_id, keys.UPDATE_REFUSAL)
+    logger.info("worker %s serving robot %s with map %s", worker.worker_id, robot_id, worker.map_checksum)
     try:
         while not stop.is_set():
-            status.publish_if_due({"requests_answered": answered, "inbox_dropped": inbox.dropped})
+            status.publish_if_due({"requests_answered": answered, "requests_failed": failed, "inbox_dropped": inbox.dropped})
             payload = inbox.get(timeout=0.1)
             if payload is None:
                 continue
             try:
-                result = worker.handle(decode(payload, UpdateRequest))
+                request = decode(payload, UpdateRequest)
             except DecodeError as error:
                 bad.record(error.kind, error.reason)
                 continue
-            except RequestError as error:
-                bad.record("bad_request", str(error))
+            answer = worker.answer(request)
+            if isinstance(answer, UpdateRefusal):
+                if answer.reason is RefusalReason.FAILED:
+                    failed += 1
+                else:
+                    bad.record(answer.reason.value, answer.detail)
+                bus.publish(refusal_key, encode(answer))
                 continue
-            bus.publish(result_key, encode(result))
+            bus.publish(result_key, encode(answer))
             answered += 1
     finally:
         token.close()

@@ -1,4 +1,9 @@
-"""The NeRF worker: a stateless function from update requests to per-particle log-likelihoods."""
+"""The NeRF worker: a stateless function from update requests to per-particle log-likelihoods.
+
+Every request gets an answer (:meth:`NerfWorker.answer`): its result, or a refusal naming why
+(another map, a request that cannot be evaluated, a computation that failed), so that the filter
+acts on it at once instead of waiting for its timeout; a failure never ends the worker.
+"""
 
 from __future__ import annotations
 
@@ -18,7 +23,8 @@ from locnerf.filter.depth_measurement import (
 from locnerf.filter.measurement import particle_log_likelihoods
 from locnerf.filter.warp import WarpReference, render_reference, warp_log_likelihoods
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
-from locnerf.messages.schemas import DepthRequest, UpdateRequest, UpdateResult
+from locnerf.maps.source import map_identity
+from locnerf.messages.schemas import DepthRequest, RefusalReason, UpdateRefusal, UpdateRequest, UpdateResult
 from services.rgbd import depth_observation
 
 logger = logging.getLogger(__name__)
@@ -28,28 +34,66 @@ class RequestError(ValueError):
     """A request whose content cannot be evaluated (non-rigid poses, pixels outside the image)."""
 
 
+class WrongMapError(RequestError):
+    """A request for another map than the worker's."""
+
+
+REFUSAL_DETAIL_LENGTH = 1000
+"""Characters of an error message kept in a refusal's ``detail``."""
+
+
 class NerfWorker:
     """Evaluates update requests against one map.
 
     Args:
-        radiance_map: the map (world or map file) rendering in map units.
+        radiance_map: the map (world or map file) rendering in map units; it must have a checksum.
         worker_id: name reported in results and in the liveliness token.
+
+    Raises:
+        ValueError: a map without a checksum (:func:`locnerf.maps.source.map_identity`).
     """
 
     def __init__(self, radiance_map: RadianceMap, worker_id: str) -> None:
         self.map = radiance_map
         self.worker_id = worker_id
+        self.map_checksum = map_identity(radiance_map)
+        self.failures = 0
         self.render_surface = surface_renderer(radiance_map)
         self.surface_distance = surface_distance_of(radiance_map)
         self._warned_warp = False
         self._warned_depth = False
 
+    def answer(self, request: UpdateRequest) -> UpdateResult | UpdateRefusal:
+        """The request's result (:meth:`handle`), or a refusal: ``wrong_map``, ``bad_request`` (a :class:`RequestError`)
+        or ``failed`` (any other exception, e.g. out of GPU memory, logged with its traceback the first time)."""
+        try:
+            return self.handle(request)
+        except WrongMapError as error:
+            return self._refusal(request, RefusalReason.WRONG_MAP, error)
+        except RequestError as error:
+            return self._refusal(request, RefusalReason.BAD_REQUEST, error)
+        except Exception as error:  # noqa: BLE001 - any failure of the computation is answered, and the worker serves on
+            self.failures += 1
+            logger.error("request %s shard %d failed: %s: %s", request.request_id, request.shard, type(error).__name__, error, exc_info=self.failures == 1)
+            if isinstance(error, torch.cuda.OutOfMemoryError):
+                torch.cuda.empty_cache()
+            return self._refusal(request, RefusalReason.FAILED, error)
+
+    def _refusal(self, request: UpdateRequest, reason: RefusalReason, error: Exception) -> UpdateRefusal:
+        detail = f"{type(error).__name__}: {error}"[:REFUSAL_DETAIL_LENGTH]
+        return UpdateRefusal(
+            request_id=request.request_id, shard=request.shard, worker_id=self.worker_id, reason=reason, detail=detail, map_checksum=self.map_checksum
+        )
+
     def handle(self, request: UpdateRequest) -> UpdateResult:
         """Log-likelihoods of the request's particles (eq. 5 of the paper, log space).
 
         Raises:
+            WrongMapError: a request for another map (its ``map_checksum`` is not this worker's).
             RequestError: poses that are not rigid transforms, pixels outside the image, a depth part the depth term refuses.
         """
+        if request.map_checksum != self.map_checksum:
+            raise WrongMapError(f"request for map {request.map_checksum}, this worker holds map {self.map_checksum}")
         started = time.perf_counter()
         device = self.map.device
         poses = torch.tensor(request.poses, dtype=torch.float32).reshape(-1, 4, 4)

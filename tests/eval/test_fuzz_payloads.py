@@ -14,12 +14,13 @@ from hypothesis import HealthCheck, given, settings
 
 from locnerf.eval.fuzz_payloads import ACCEPTED, IMAGE_LIMIT_PIXELS, TARGETS, FuzzTarget, Hostile
 from locnerf.messages.codec import DecodeError, decode, decode_image
-from locnerf.messages.schemas import FilterStatus, GlobalLocalizationCommand, InitialPoseCommand, Odometry, UpdateRequest, UpdateResult
+from locnerf.messages.schemas import FilterStatus, GlobalLocalizationCommand, InitialPoseCommand, Odometry, UpdateRefusal, UpdateRequest, UpdateResult
 
 MESSAGES = {
     "sensors/odom": Odometry,
     "sensors/image": None,
     "update/result": UpdateResult,
+    "update/refusal": UpdateRefusal,
     "command/initial_pose": InitialPoseCommand,
     "command/global_localization": GlobalLocalizationCommand,
     "update/request/{worker_id}": UpdateRequest,

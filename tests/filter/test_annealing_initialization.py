@@ -59,6 +59,30 @@ def test_uniform_particles_respect_bounds_and_refuse_bad_bounds(generator):
         uniform_particles(bounds.flip(0), 5, generator)
 
 
+@pytest.mark.parametrize("up", [(0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (1.0, 1.0, 0.0)])
+def test_uniform_particles_without_a_tilt_are_level_about_the_maps_up(generator, up):
+    """Level: the camera's y axis (OpenGL: up) along the map's up, its viewing direction (−z) horizontal, any heading."""
+    bounds = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+    poses = uniform_particles(bounds, 500, generator, up=up)
+    axis = torch.nn.functional.normalize(torch.tensor(up, dtype=torch.float64), dim=0)
+    torch.testing.assert_close(poses[:, :3, 1], axis.expand(500, 3))
+    viewing = -poses[:, :3, 2]
+    torch.testing.assert_close(viewing @ axis, torch.zeros(500, dtype=torch.float64))
+    headings = torch.linalg.cross(viewing, axis.expand(500, 3))  # horizontal, turning with the yaw
+    assert (headings.mean(dim=0).norm() < 0.1) and headings.norm(dim=-1).min() > 0.99
+
+
+def test_uniform_particles_about_y_up_are_turns_about_y(generator):
+    """The y-up case is as before: the identity turned by a yaw about y."""
+    bounds = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+    rotations = uniform_particles(bounds, 100, generator)[:, :3, :3]
+    yaw = torch.atan2(rotations[:, 0, 2], rotations[:, 2, 2])
+    cos, sin = torch.cos(yaw), torch.sin(yaw)
+    zero, one = torch.zeros_like(yaw), torch.ones_like(yaw)
+    turns = torch.stack([cos, zero, sin, zero, one, zero, -sin, zero, cos], dim=-1).reshape(100, 3, 3)
+    torch.testing.assert_close(rotations, turns)
+
+
 def test_presets_reproduce_the_original_parameters():
     llff, global_, jackal = preset("llff"), preset("llff_global"), preset("jackal")
     assert (llff.particles, llff.annealing.reduced_particles, llff.measurement.pixels) == (300, 100, 64)

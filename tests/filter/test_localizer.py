@@ -279,3 +279,12 @@ def test_the_effective_sample_size_reported_is_that_of_the_update_before_resampl
     assert localizer.estimate().effective_sample_size == pytest.approx(expected)  # what the pose message publishes
     localizer.initialize(line_of_particles(8))
     assert localizer.estimate().effective_sample_size == pytest.approx(8.0)
+
+
+def test_a_uniform_start_is_level_about_the_regions_up(generator):
+    """The services' global start: on a z-up map (NeRF-synthetic) the particles look horizontally, not straight down."""
+    localizer = make_localizer(generator, particles=50)
+    localizer.initialize_uniform(SearchRegion(low=(-1.0, -1.0, -1.0), high=(1.0, 1.0, 1.0), up=(0.0, 0.0, 1.0)))
+    rotations = localizer.particles.poses[:, :3, :3]
+    torch.testing.assert_close(rotations[:, :, 1], torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(50, 3))
+    torch.testing.assert_close(rotations[:, 2, 2], torch.zeros(50, dtype=torch.float64))  # viewing direction −z: no vertical part

@@ -35,6 +35,7 @@ def request(request_id: str, shard: int) -> bytes:
     message = UpdateRequest(
         request_id=request_id,
         shard=shard,
+        map_checksum="ab" * 32,
         epoch=0,
         generation=0,
         ids=[0],

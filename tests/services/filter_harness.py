@@ -26,13 +26,15 @@ class Harness:
         self.now = 0.0
         settings = localizer_config if localizer_config is not None else preset("llff")
         localizer = Localizer(settings, torch.Generator().manual_seed(seed), region=self.region, keyframes=keyframes)
-        self.loop = FilterLoop(ROBOT, localizer, world.normalization, self.region, config, lambda: self.now)
+        self.loop = FilterLoop(ROBOT, localizer, world.normalization, self.region, config, lambda: self.now, world.checksum)
         self.world = world
         self.requests: list[tuple[str, UpdateRequest]] = []
         self.poses: list[PoseEstimate] = []
 
-    def add_worker(self, name: str, alive: bool = True) -> None:
-        self.collect(self.loop.worker_changed(keys.key(ROBOT, keys.WORKER_ALIVE, worker_id=name, device="cpu"), alive))
+    def add_worker(self, name: str, alive: bool = True, map_checksum: str | None = None) -> None:
+        """Worker ``name``'s token appears (or vanishes with ``alive`` false), announcing the world's map or ``map_checksum``."""
+        token = keys.key(ROBOT, keys.WORKER_ALIVE, worker_id=name, device="cpu", map_checksum=map_checksum or self.world.checksum)
+        self.collect(self.loop.worker_changed(token, alive))
 
     def collect(self, outgoing) -> None:
         for key, payload in outgoing:

@@ -47,13 +47,13 @@ def test_queued_odometry_is_published_before_the_update_that_an_image_starts():
     region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
     localizer = Localizer(preset("llff").model_copy(update={"particles": 20}), torch.Generator().manual_seed(0), region=region)
     now = [0.0]
-    loop = FilterLoop(ROBOT, localizer, world.normalization, region, FilterLoopConfig(), lambda: now[0])
+    loop = FilterLoop(ROBOT, localizer, world.normalization, region, FilterLoopConfig(), lambda: now[0], world.checksum)
     bus = MemoryBus()
     published: list[str] = []
     bus.subscribe(f"locnerf/{ROBOT}/**", lambda key, _payload: published.append(key.removeprefix(f"locnerf/{ROBOT}/")))
     driver = FilterDriver(loop, bus, clock=lambda: now[0])
     driver.subscribe()
-    bus.declare_token(keys.key(ROBOT, keys.WORKER_ALIVE, worker_id="w", device="cpu"))
+    bus.declare_token(keys.key(ROBOT, keys.WORKER_ALIVE, worker_id="w", device="cpu", map_checksum=world.checksum))
     identity = torch.eye(4, dtype=torch.float64).tolist()
     intrinsics = world.default_intrinsics
     header = ImageHeader(stamp=0.0, encoding="rgb8", width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics)
@@ -79,7 +79,7 @@ def test_the_status_leaves_when_due_while_odometry_keeps_the_thread_busy():
     region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
     localizer = Localizer(preset("llff").model_copy(update={"particles": 20}), torch.Generator().manual_seed(0), region=region)
     now = [0.0]
-    loop = FilterLoop(ROBOT, localizer, world.normalization, region, FilterLoopConfig(status_rate=1.0), lambda: now[0])
+    loop = FilterLoop(ROBOT, localizer, world.normalization, region, FilterLoopConfig(status_rate=1.0), lambda: now[0], world.checksum)
     bus = MemoryBus()
     statuses: list[FilterStatus] = []
     bus.subscribe(keys.key(ROBOT, keys.STATUS), lambda _key, payload: statuses.append(decode(payload, FilterStatus)))

@@ -58,6 +58,7 @@ def _request(world: ProceduralWorld, generator: torch.Generator, count: int = 6)
     request = UpdateRequest(
         request_id="r",
         shard=0,
+        map_checksum=world.checksum,
         epoch=1,
         generation=0,
         ids=list(range(10, 10 + count)),
@@ -281,7 +282,7 @@ def test_worker_warps_as_the_in_process_localizer_does(world, generator):
 
     class RenderOnly:  # the world without its surface renderer, as an MLP or NDC map
         def __init__(self) -> None:
-            self.render_rays, self.device, self.normalization = world.render_rays, world.device, world.normalization
+            self.render_rays, self.device, self.normalization, self.checksum = world.render_rays, world.device, world.normalization, world.checksum
 
     rendered = NerfWorker(RenderOnly(), "w").handle(request)
     pixels, colours = torch.tensor(request.pixels), torch.tensor(request.observed_rgb)
@@ -367,7 +368,7 @@ def test_worker_adds_the_depth_term_of_an_rgbd_request_as_the_localizer_does(wor
 
     class RenderOnly:  # the world without its surface renderer, as an MLP or NDC map
         def __init__(self) -> None:
-            self.render_rays, self.device, self.normalization = world.render_rays, world.device, world.normalization
+            self.render_rays, self.device, self.normalization, self.checksum = world.render_rays, world.device, world.normalization, world.checksum
 
     torch.testing.assert_close(torch.tensor(NerfWorker(RenderOnly(), "w").handle(case.rendered).log_likelihoods, dtype=torch.float64), colour.double())
     with pytest.raises(ValueError, match=r"depth request: image of 10 bytes, expected 2400 for 40×30 uint16"):
@@ -390,7 +391,7 @@ def test_worker_looks_the_depth_term_up_in_its_maps_surface_distance_layer(world
     class WorldWithLayer:  # the world as a map built from depth images
         def __init__(self) -> None:
             self.render_rays, self.render_surface, self.device, self.normalization = world.render_rays, world.render_surface, world.device, world.normalization
-            self.surface_distance = layer
+            self.surface_distance, self.checksum = layer, world.checksum
 
     worker = NerfWorker(WorldWithLayer(), "w")
     depth_term = surface_distance_log_likelihoods(poses, observation, case.pixels, layer, depth_config).double()

@@ -121,7 +121,7 @@ def filter_rig(config: Ros2Config, clock: Clock) -> tuple[FilterLoop, FilterDriv
     bounds = world.camera_bounds()
     region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
     localizer = Localizer(preset("llff").model_copy(update={"particles": 20}), torch.Generator().manual_seed(0), region=region)
-    loop = FilterLoop(ROBOT, localizer, world.normalization, region, FilterLoopConfig(start="wait"), clock)
+    loop = FilterLoop(ROBOT, localizer, world.normalization, region, FilterLoopConfig(start="wait"), clock, world.checksum)
     bus = MemoryBus()
     driver = FilterDriver(loop, bus, clock=clock, ros2=FilterRos2Bridge(loop, bus, config, clock))
     driver.subscribe()

@@ -53,7 +53,7 @@ def filter_driver(bus: Bus) -> tuple[FilterLoop, FilterDriver]:
     bounds = world.camera_bounds()
     region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
     localizer = Localizer(preset("llff").model_copy(update={"particles": 20}), torch.Generator().manual_seed(0), region=region)
-    loop = FilterLoop(FILTER_ROBOT, localizer, world.normalization, region, FilterLoopConfig(start="wait"), time.monotonic)
+    loop = FilterLoop(FILTER_ROBOT, localizer, world.normalization, region, FilterLoopConfig(start="wait"), time.monotonic, world.checksum)
     driver = FilterDriver(loop, bus, ros2=FilterRos2Bridge(loop, bus, CONFIG))
     driver.subscribe()
     return loop, driver
