@@ -39,6 +39,7 @@ from locnerf.messages.schemas import (
     ParticleCloud,
     PoseEstimate,
     UpdateResult,
+    UpdateRefusal,
     WarpRequest,
 )
 from services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
@@ -66,6 +67,12 @@ class FilterLoopConfig(BaseModel):
     max_in_flight: int = Field(2, ge=1, description="Updates in flight at once (2 keeps the workers busy while the filter merges).")
     max_image_age: float = Field(1.0, gt=0, description="Images older than the newest odometry by more than this are dropped, seconds.")
     image_odometry_wait: float = Field(
+    max_shard_attempts: int = Field(
+        3,
+        ge=1,
+        description="Sends of one update shard, to workers that vanished or refused it as failed, before the update is given up "
+        "(updates_given_up): a shard that fails every worker is not passed on from worker to worker for ever.",
+    )
         0.3,
         gt=0,
         description="Longest wait, seconds of the filter's clock, of an image stamped after the newest odometry for odometry at or after its "
@@ -118,6 +125,7 @@ class FilterLoop:
         clock: monotonic seconds.
     """
 
+        map_checksum: identity of the map (:func:`locnerf.maps.source.map_identity`); only workers announcing it are sent updates.
     def __init__(
         self,
         robot_id: str,
@@ -128,6 +136,7 @@ class FilterLoop:
         clock: Callable[[], float],
     ) -> None:
         self.robot_id = robot_id
+        map_checksum: str,
         self.localizer = localizer
         self.state_machine = LoopStateMachine(localizer)
         self.frames = FilterFrames(normalization, torch.tensor(config.T_body_cam, dtype=torch.float64))
@@ -135,7 +144,7 @@ class FilterLoop:
         self.region = region
         self.config = config
         self.clock = clock
-        self.dispatcher = UpdateDispatcher(config.update_timeout, config.max_in_flight)
+        self.dispatcher = UpdateDispatcher(map_checksum, config.update_timeout, config.max_in_flight, config.max_shard_attempts)
         self.history = OdometryHistory(config.odometry_horizon)
         self.bad = BadMessages("filter_loop")
         self.rates = {name: RateMeter(clock=clock) for name in ("odometry", "pose", "image", "update")}
@@ -348,6 +357,18 @@ class FilterLoop:
             return []
         logger.info("initial pose command: re-initialising")
         self._initialize_around(pose, torch.tensor(command.covariance, dtype=torch.float64))
+    def handle_refusal(self, payload: bytes) -> Outgoing:
+        """A worker refused a shard: re-send it to another worker or give the update up, at once."""
+        try:
+            return self._requests(self.dispatcher.refused(decode(payload, UpdateRefusal)))
+        except DecodeError as error:
+            self.bad.record(error.kind, error.reason)
+        except UnknownRequestError as error:
+            self.bad.record("unknown_request", str(error))
+        except ValueError as error:
+            self.bad.record("result_mismatch", str(error))
+        return []
+
         return []
 
     def handle_global_localization(self, payload: bytes) -> Outgoing:
@@ -362,14 +383,14 @@ class FilterLoop:
         return []
 
     def worker_changed(self, token_key: str, alive: bool) -> Outgoing:
-        """A worker's liveliness token appeared or vanished."""
+        """A worker's liveliness token appeared or vanished (one announcing another map: counted, left out)."""
         try:
-            worker_id, device = keys.parse_worker_token(token_key)
+            token = keys.parse_worker_token(token_key)
         except ValueError as error:
             self.bad.record("bad_token", str(error))
             return []
-        logger.info("worker %s (%s) %s", worker_id, device, "joined" if alive else "left")
-        return self._requests(self.dispatcher.worker_changed(worker_id, device, alive))
+        logger.info("worker %s (%s, map %s) %s", token.worker_id, token.device, token.map_checksum, "joined" if alive else "left")
+        return self._requests(self.dispatcher.worker_changed(token, alive))
 
     def _requests(self, addressed: list[AddressedRequest]) -> Outgoing:
         return [(self._key(keys.UPDATE_REQUEST, worker_id=worker), encode(request)) for worker, request in addressed]
@@ -496,3 +517,5 @@ class FilterLoop:
             workers=sorted(self.dispatcher.workers),
             counters=self.counters(),
         )
+            workers_on_another_map=sorted(self.dispatcher.other_map),
+            map_checksum=self.dispatcher.map_checksum,

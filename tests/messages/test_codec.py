@@ -20,10 +20,21 @@ EXAMPLES = [
     schemas.PoseStamped(stamp=2.0, T_world_cam=EYE),
     schemas.PoseEstimate(stamp=2.0, T_world_cam=EYE, covariance=COV, particle_count=3, spread=0.1, effective_sample_size=2.5, mode="coarse", epoch=1),
     schemas.ParticleCloud(stamp=0.0, positions=[[0.0, 1.0, 2.0]], weights=[1.0]),
-    schemas.FilterStatus(stamp=0.0, state="running", rates_hz={"pose": 15.0}, update_latency_s=None, in_flight=0, workers=["a"], counters={"x": 1}),
+    schemas.FilterStatus(
+        stamp=0.0,
+        state="running",
+        rates_hz={"pose": 15.0},
+        update_latency_s=None,
+        in_flight=0,
+        workers=["a"],
+        workers_on_another_map=["b"],
+        map_checksum="ab" * 32,
+        counters={"x": 1},
+    ),
     schemas.UpdateRequest(
         request_id="r",
         shard=0,
+        map_checksum="ab" * 32,
         epoch=1,
         generation=2,
         ids=[7],
@@ -33,6 +44,7 @@ EXAMPLES = [
         intrinsics=INTRINSICS,
     ),
     schemas.UpdateResult(request_id="r", shard=0, worker_id="w", epoch=1, generation=2, ids=[7], log_likelihoods=[-math.inf], compute_seconds=0.1),
+    schemas.UpdateRefusal(request_id="r", shard=1, worker_id="w", reason="failed", detail="OutOfMemoryError: CUDA out of memory", map_checksum="cd" * 32),
     schemas.InitialPoseCommand(stamp=0.0, T_world_cam=EYE, covariance=COV),
     schemas.GlobalLocalizationCommand(stamp=0.0),
     schemas.ServiceStatus(stamp=1.7e9, service="nerf_worker", instance="w", counters={"requests_answered": 3, "bad_messages": 0}),
@@ -118,15 +130,17 @@ def test_image_header_must_match_its_intrinsics():
 def test_key_table_is_unique_and_parses_worker_tokens():
     suffixes = [topic.suffix for topic in keys.TABLE]
     assert len(suffixes) == len(set(suffixes))
-    token = keys.key("r1", keys.WORKER_ALIVE, worker_id="host-12", device="cuda")
-    assert token == "locnerf/r1/alive/worker/host-12/cuda"
-    assert keys.parse_worker_token(token) == ("host-12", "cuda")
+    token = keys.key("r1", keys.WORKER_ALIVE, worker_id="host-12", device="cuda", map_checksum="ab" * 32)
+    assert token == "locnerf/r1/alive/worker/host-12/cuda/" + "ab" * 32
+    assert keys.parse_worker_token(token) == keys.WorkerToken("host-12", "cuda", "ab" * 32)
+    with pytest.raises(ValueError, match="<worker_id>/<device>/<map_checksum>"):
+        keys.parse_worker_token("locnerf/r1/alive/worker/host-12/cuda")  # a token without a map
     with pytest.raises(ValueError, match="robot id"):
         keys.key("a/b", keys.POSE)
     assert "`filter/pose`" in keys.markdown_table()
 
 
-@pytest.mark.parametrize("version", [1.0, True, "1", 2, None])
+@pytest.mark.parametrize("version", [float(codec.SCHEMA_VERSION), True, str(codec.SCHEMA_VERSION), codec.SCHEMA_VERSION - 1, codec.SCHEMA_VERSION + 1, None])
 def test_only_the_integer_schema_version_is_accepted(version):
     body = schemas.GlobalLocalizationCommand(stamp=0.0).model_dump()
     payload = msgpack.packb({"v": version, "type": "GlobalLocalizationCommand", "body": body})
@@ -137,7 +151,7 @@ def test_only_the_integer_schema_version_is_accepted(version):
 
 @pytest.mark.parametrize("stamp", [1e10, -1e10, 1e300])
 def test_absurd_stamps_are_invalid(stamp):
-    payload = msgpack.packb({"v": 1, "type": "GlobalLocalizationCommand", "body": {"stamp": stamp, "frame_id": "map"}})
+    payload = msgpack.packb({"v": codec.SCHEMA_VERSION, "type": "GlobalLocalizationCommand", "body": {"stamp": stamp, "frame_id": "map"}})
     with pytest.raises(codec.DecodeError) as error:
         codec.decode(payload, schemas.GlobalLocalizationCommand)
     assert error.value.kind == "invalid"

@@ -50,7 +50,7 @@ def setup():
     region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()))
     localizer = Localizer(preset("llff").model_copy(update={"particles": 20}), torch.Generator().manual_seed(0), region=region)
     config = FilterLoopConfig(start="wait", T_body_cam=T_BODY_CAM.tolist())
-    loop = FilterLoop(ROBOT, localizer, world.normalization, region, config, lambda: 0.0)
+    loop = FilterLoop(ROBOT, localizer, world.normalization, region, config, lambda: 0.0, world.checksum)
     bus = MemoryBus()
     received: dict[str, list] = {"pose": [], "cloud": [], "tf": [], "locnerf": []}
     bus.subscribe(keys.key(ROBOT, keys.POSE), lambda _k, payload: received["locnerf"].append(payload))
