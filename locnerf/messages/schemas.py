@@ -205,6 +205,10 @@ class FilterStatus(Stamped):
     update_latency_s: float | None = Field(description="Mean time from update request to merge over the last updates, seconds.")
     in_flight: int = Field(ge=0, description="Update shards sent and not yet answered.")
     workers: list[str] = Field(description="Ids of the live NeRF workers.")
+    workers_on_another_map: list[str] = Field(
+        default_factory=list, description="Ids of the live NeRF workers left out because they hold another map than the filter's (see map_checksum)."
+    )
+    map_checksum: str = Field(description="Identity of the filter's map (SHA-256 hex); only workers announcing the same are sent updates.")
     counters: dict[str, int] = Field(description="Counts: updates merged, stale, timed out, retried, dropped images, bad messages by kind.")
 
 
@@ -241,10 +245,6 @@ class WarpRequest(_Wire):
 
 
 class DepthRequest(_Wire):
-    workers_on_another_map: list[str] = Field(
-        default_factory=list, description="Ids of the live NeRF workers left out because they hold another map than the filter's (see map_checksum)."
-    )
-    map_checksum: str = Field(description="Identity of the filter's map (SHA-256 hex); only workers announcing the same are sent updates.")
     """The depth term of an update on an RGB-D frame (:mod:`locnerf.filter.depth_measurement`); every shard carries the same."""
 
     image: bytes = Field(description="The observed depth image: H×W uint16 millimetres, little-endian, 0 = no reading (H, W of `intrinsics`).")
@@ -278,6 +278,10 @@ class UpdateRequest(_Wire):
 
     request_id: str = Field(description="Id shared by all shards of one update.")
     shard: int = Field(ge=0, description="Index of this shard within the update.")
+    map_checksum: str = Field(
+        description="Identity of the filter's map (SHA-256 hex, locnerf.maps.source.map_identity), which the poses, pixels, warp and depth "
+        "parts refer to; a worker holding another map refuses the request (UpdateRefusal, wrong_map)."
+    )
     epoch: int = Field(ge=0, description="Filter epoch of the snapshot.")
     generation: int = Field(ge=0, description="Particle generation of the snapshot.")
     ids: list[int] = Field(description="(K,) particle ids.")
@@ -314,10 +318,6 @@ class UpdateResult(_Wire):
     shard: int = Field(ge=0, description="Index of the shard.")
     worker_id: str = Field(description="Worker that computed it.")
     epoch: int = Field(ge=0, description="Filter epoch of the snapshot (copied from the request).")
-    map_checksum: str = Field(
-        description="Identity of the filter's map (SHA-256 hex, locnerf.maps.source.map_identity), which the poses, pixels, warp and depth "
-        "parts refer to; a worker holding another map refuses the request (UpdateRefusal, wrong_map)."
-    )
     generation: int = Field(ge=0, description="Particle generation of the snapshot (copied from the request).")
     ids: list[int] = Field(description="(K,) particle ids.")
     log_likelihoods: list[float] = Field(description="(K,) log-likelihoods (−inf allowed).")
@@ -328,6 +328,28 @@ class UpdateResult(_Wire):
         if len(self.ids) != len(self.log_likelihoods):
             raise ValueError(f"update result: {len(self.ids)} ids but {len(self.log_likelihoods)} log-likelihoods")
         return self
+
+
+class RefusalReason(enum.StrEnum):
+    """Why a worker answers a request with an :class:`UpdateRefusal` instead of a result."""
+
+    WRONG_MAP = "wrong_map"
+    """The request's map_checksum is not the worker's map."""
+    BAD_REQUEST = "bad_request"
+    """The request's content cannot be evaluated (non-rigid poses, pixels outside the image, a depth part the term refuses)."""
+    FAILED = "failed"
+    """The computation failed on this worker (e.g. out of GPU memory); another worker may succeed."""
+
+
+class UpdateRefusal(_Wire):
+    """A worker's answer to a request it did not compute, so that the filter re-sends the shard or gives the update up at once."""
+
+    request_id: str = Field(description="Id of the update the refused shard belongs to.")
+    shard: int = Field(ge=0, description="Index of the shard.")
+    worker_id: str = Field(description="Worker that refused it.")
+    reason: RefusalReason = Field(description="wrong_map, bad_request or failed.")
+    detail: str = Field(max_length=1000, description="What went wrong, for the logs (the exception's message, shortened).")
+    map_checksum: str = Field(description="Identity of the worker's map (SHA-256 hex).")
 
 
 class InitialPoseCommand(PoseStamped):
@@ -357,30 +379,8 @@ WIRE_TYPES: dict[str, type[_Wire]] = {
         ServiceStatus,
         UpdateRequest,
         UpdateResult,
+        UpdateRefusal,
         InitialPoseCommand,
         GlobalLocalizationCommand,
     )
 }
-class RefusalReason(enum.StrEnum):
-    """Why a worker answers a request with an :class:`UpdateRefusal` instead of a result."""
-
-    WRONG_MAP = "wrong_map"
-    """The request's map_checksum is not the worker's map."""
-    BAD_REQUEST = "bad_request"
-    """The request's content cannot be evaluated (non-rigid poses, pixels outside the image, a depth part the term refuses)."""
-    FAILED = "failed"
-    """The computation failed on this worker (e.g. out of GPU memory); another worker may succeed."""
-
-
-class UpdateRefusal(_Wire):
-    """A worker's answer to a request it did not compute, so that the filter re-sends the shard or gives the update up at once."""
-
-    request_id: str = Field(description="Id of the update the refused shard belongs to.")
-    shard: int = Field(ge=0, description="Index of the shard.")
-    worker_id: str = Field(description="Worker that refused it.")
-    reason: RefusalReason = Field(description="wrong_map, bad_request or failed.")
-    detail: str = Field(max_length=1000, description="What went wrong, for the logs (the exception's message, shortened).")
-    map_checksum: str = Field(description="Identity of the worker's map (SHA-256 hex).")
-
-
-        UpdateRefusal,

@@ -38,8 +38,8 @@ from locnerf.messages.schemas import (
     Odometry,
     ParticleCloud,
     PoseEstimate,
-    UpdateResult,
     UpdateRefusal,
+    UpdateResult,
     WarpRequest,
 )
 from services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
@@ -65,14 +65,14 @@ class FilterLoopConfig(BaseModel):
     start: Literal["global", "wait"] = Field("global", description="Without a saved state: 'global' (localize over the map) or 'wait' (for a command).")
     update_timeout: float = Field(5.0, gt=0, description="An update not complete after this many seconds is abandoned.")
     max_in_flight: int = Field(2, ge=1, description="Updates in flight at once (2 keeps the workers busy while the filter merges).")
-    max_image_age: float = Field(1.0, gt=0, description="Images older than the newest odometry by more than this are dropped, seconds.")
-    image_odometry_wait: float = Field(
     max_shard_attempts: int = Field(
         3,
         ge=1,
         description="Sends of one update shard, to workers that vanished or refused it as failed, before the update is given up "
         "(updates_given_up): a shard that fails every worker is not passed on from worker to worker for ever.",
     )
+    max_image_age: float = Field(1.0, gt=0, description="Images older than the newest odometry by more than this are dropped, seconds.")
+    image_odometry_wait: float = Field(
         0.3,
         gt=0,
         description="Longest wait, seconds of the filter's clock, of an image stamped after the newest odometry for odometry at or after its "
@@ -123,9 +123,9 @@ class FilterLoop:
         region: plausible camera positions for global localization (map units).
         config: timing and fault handling.
         clock: monotonic seconds.
+        map_checksum: identity of the map (:func:`locnerf.maps.source.map_identity`); only workers announcing it are sent updates.
     """
 
-        map_checksum: identity of the map (:func:`locnerf.maps.source.map_identity`); only workers announcing it are sent updates.
     def __init__(
         self,
         robot_id: str,
@@ -134,9 +134,9 @@ class FilterLoop:
         region: SearchRegion,
         config: FilterLoopConfig,
         clock: Callable[[], float],
+        map_checksum: str,
     ) -> None:
         self.robot_id = robot_id
-        map_checksum: str,
         self.localizer = localizer
         self.state_machine = LoopStateMachine(localizer)
         self.frames = FilterFrames(normalization, torch.tensor(config.T_body_cam, dtype=torch.float64))
@@ -343,6 +343,18 @@ class FilterLoop:
             logger.info("odometry stamp %.2f s: %d recovery particles injected", self.history.latest_stamp or 0.0, report.injected)
         return []
 
+    def handle_refusal(self, payload: bytes) -> Outgoing:
+        """A worker refused a shard: re-send it to another worker or give the update up, at once."""
+        try:
+            return self._requests(self.dispatcher.refused(decode(payload, UpdateRefusal)))
+        except DecodeError as error:
+            self.bad.record(error.kind, error.reason)
+        except UnknownRequestError as error:
+            self.bad.record("unknown_request", str(error))
+        except ValueError as error:
+            self.bad.record("result_mismatch", str(error))
+        return []
+
     def handle_initial_pose(self, payload: bytes) -> Outgoing:
         """Re-initialise around the commanded metric pose."""
         try:
@@ -357,18 +369,6 @@ class FilterLoop:
             return []
         logger.info("initial pose command: re-initialising")
         self._initialize_around(pose, torch.tensor(command.covariance, dtype=torch.float64))
-    def handle_refusal(self, payload: bytes) -> Outgoing:
-        """A worker refused a shard: re-send it to another worker or give the update up, at once."""
-        try:
-            return self._requests(self.dispatcher.refused(decode(payload, UpdateRefusal)))
-        except DecodeError as error:
-            self.bad.record(error.kind, error.reason)
-        except UnknownRequestError as error:
-            self.bad.record("unknown_request", str(error))
-        except ValueError as error:
-            self.bad.record("result_mismatch", str(error))
-        return []
-
         return []
 
     def handle_global_localization(self, payload: bytes) -> Outgoing:
@@ -515,7 +515,7 @@ class FilterLoop:
             update_latency_s=sum(self.latencies) / len(self.latencies) if self.latencies else None,
             in_flight=self.dispatcher.in_flight,
             workers=sorted(self.dispatcher.workers),
-            counters=self.counters(),
-        )
             workers_on_another_map=sorted(self.dispatcher.other_map),
             map_checksum=self.dispatcher.map_checksum,
+            counters=self.counters(),
+        )
