@@ -20,7 +20,7 @@ from locnerf.eval.plots import plot_images_beside_renders
 from locnerf.eval.reprojection_ceiling import CeilingConfig, reprojection_ceiling
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.grid_map import GridMap
-from locnerf.field.map_file import load_map, read_map_archive, save_map
+from locnerf.field.map_file import load_map, read_map_info, save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.nerf_pytorch import load_nerf_pytorch_checkpoint
 from locnerf.field.surface_distance import SurfaceDistanceConfig
@@ -280,15 +280,14 @@ def run_prune(args: argparse.Namespace) -> int:
 
 
 def run_info(args: argparse.Namespace) -> int:
-    archive = read_map_archive(args.map)
-    info = archive["info"]
+    archive, info = read_map_info(args.map)
     summary = {
         "kind": archive["kind"],
         "version": archive["version"],
-        "normalization": info["normalization"],
-        "intrinsics": info["intrinsics"],
-        "reference_views": int(info["reference_poses"].shape[0]),
-        "metadata": info["metadata"],
+        "normalization": info.normalization.model_dump(mode="json"),
+        "intrinsics": info.intrinsics.model_dump(mode="json"),
+        "reference_views": int(info.reference_poses.shape[0]),
+        "metadata": info.metadata,
     }
     print(json.dumps(summary, indent=2, default=str))
     return 0

@@ -26,6 +26,11 @@ from locnerf.render.volume import ray_box_intersection, weights_from_optical_dep
 
 RETIRED_CONFIG_FIELDS = ("block_samples", "coarse_factor")
 """Render tuning that older map files store in the field config (now constants of grid_march)."""
+MAX_GRID_VERTICES = 2**27
+"""Most vertices of a grid (512³: 6.4 GB of float32 at the default 12 channels; the default map has 128³ = 2.1M).
+Map files asking for more are refused before anything is allocated."""
+MAX_FEATURES, MAX_DECODER_WIDTH, MAX_DIRECTION_FREQUENCIES = 64, 1024, 16
+"""Largest view features per vertex, decoder width and direction octaves a grid field is built with."""
 
 
 class GridFieldConfig(BaseModel):
@@ -33,10 +38,12 @@ class GridFieldConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    voxels: int = Field(128**3, gt=0, description="Target number of grid vertices (split over the axes by the box's aspect).")
-    features: int = Field(8, ge=0, description="View-feature channels per vertex, decoded per ray by the MLP.")
-    decoder_width: int = Field(64, gt=0, description="Hidden width of the per-ray view-dependent decoder.")
-    direction_frequencies: int = Field(2, ge=0, description="Octaves of the frequency encoding of the view direction.")
+    voxels: int = Field(
+        128**3, gt=0, le=MAX_GRID_VERTICES, description="Target number of grid vertices (split over the axes by the box's aspect); at most 2**27."
+    )
+    features: int = Field(8, ge=0, le=MAX_FEATURES, description="View-feature channels per vertex, decoded per ray by the MLP.")
+    decoder_width: int = Field(64, gt=0, le=MAX_DECODER_WIDTH, description="Hidden width of the per-ray view-dependent decoder.")
+    direction_frequencies: int = Field(2, ge=0, le=MAX_DIRECTION_FREQUENCIES, description="Octaves of the frequency encoding of the view direction.")
     step_ratio: float = Field(0.5, gt=0, description="Sample spacing along rays, in voxels.")
     initial_alpha: float = Field(1e-4, gt=0, lt=1, description="Opacity of one step at initialisation (sets the density shift).")
     occupancy_alpha: float = Field(1e-3, gt=0, lt=1, description="A voxel is occupied when one step through it is at least this opaque.")
@@ -103,13 +110,17 @@ class GridField(torch.nn.Module):
     Points and rays are in the field's space (the map frame, or NDC for forward-facing maps).
     """
 
-    def __init__(self, box: torch.Tensor, config: GridFieldConfig, background: tuple[float, float, float] | None) -> None:
+    def __init__(
+        self, box: torch.Tensor, config: GridFieldConfig, background: tuple[float, float, float] | None, resolution: tuple[int, int, int] | None = None
+    ) -> None:
+        """A zero grid over ``box`` (2, 3) with ``resolution`` (Rx, Ry, Rz) vertices, by default about
+        ``config.voxels`` split over the axes by the box's aspect (:func:`grid_shape_for_box`)."""
         super().__init__()
         self.config = config
         self.register_buffer("box", box.float().clone())
         self.register_buffer("background", torch.tensor(background if background is not None else (0.0, 0.0, 0.0)))
         self.has_background = background is not None
-        rx, ry, rz = grid_shape_for_box(box, config.voxels, config.voxel_aspect)
+        rx, ry, rz = resolution if resolution is not None else grid_shape_for_box(box, config.voxels, config.voxel_aspect)
         channels = 4 + config.features
         self._resolution = (rx, ry, rz)
         self.grid = torch.nn.Parameter(torch.zeros(rx * ry * rz, channels))

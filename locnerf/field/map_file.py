@@ -138,6 +138,19 @@ def read_map_archive(path: str | Path) -> dict[str, Any]:
     return _checked_archive(path)[0]
 
 
+def read_map_info(path: str | Path) -> tuple[dict[str, Any], MapInfo]:
+    """(:func:`read_map_archive`'s archive, its checked :class:`MapInfo`), without building the backend.
+
+    Raises:
+        MapFileError: as :func:`read_map_archive`, and for a malformed info record.
+    """
+    archive = read_map_archive(path)
+    try:
+        return archive, MapInfo.from_record(archive.get("info"))
+    except MapFileError as error:
+        raise MapFileError(f"map file {path}: {error}") from None
+
+
 def _checked_archive(path: str | Path) -> tuple[dict[str, Any], str]:
     """(:func:`read_map_archive`'s archive, the map's checksum: SHA-256 hex of the payload)."""
     path = Path(path)
@@ -167,14 +180,20 @@ def _checked_archive(path: str | Path) -> tuple[dict[str, Any], str]:
 
 
 def load_map(path: str | Path, device: torch.device | str = "cpu") -> GridMap | NerfPytorchMap:
-    """Load a map file onto ``device`` as its backend's RadianceMap, its ``checksum`` the file's."""
+    """Load a map file onto ``device`` as its backend's RadianceMap, its ``checksum`` the file's.
+
+    Raises:
+        MapFileError: besides :func:`read_map_archive`'s reasons, an archive whose info or state is
+            malformed (a missing or mistyped entry, wrong shapes, a grid of more than
+            ``MAX_GRID_VERTICES`` vertices), refused before the backend allocates what it sizes.
+    """
     archive, checksum = _checked_archive(path)
-    info = MapInfo.from_record(archive["info"])
-    radiance_map = BACKENDS[archive["kind"]].from_state(archive["state"], info, torch.device(device))
-    radiance_map.checksum = checksum
-    if "surface_distance" in archive:
-        try:
+    try:
+        info = MapInfo.from_record(archive.get("info"))
+        radiance_map = BACKENDS[archive["kind"]].from_state(archive.get("state"), info, torch.device(device))
+        if "surface_distance" in archive:
             radiance_map.surface_distance = SurfaceDistance.from_state(archive["surface_distance"]).to(device)
-        except MapFileError as error:
-            raise MapFileError(f"map file {path}: {error}") from None
+    except MapFileError as error:
+        raise MapFileError(f"map file {path}: {error}") from None
+    radiance_map.checksum = checksum
     return radiance_map

@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from locnerf.field.map_state import entry, tensor_of_shape, validated
 from locnerf.field.protocol import MapNormalization
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.ndc import ndc_rays_from_world_rays, rays_facing_scene
@@ -78,10 +79,16 @@ class MapInfo:
 
     @classmethod
     def from_record(cls, record: dict[str, Any]) -> MapInfo:
-        """Inverse of :meth:`to_record`."""
+        """Inverse of :meth:`to_record`.
+
+        Raises:
+            MapFileError: for a record with a missing or mistyped entry, an invalid normalisation or
+                camera, or reference poses that are not finite (K >= 1, 4, 4).
+        """
+        poses = entry(record, "reference_poses", torch.Tensor, "map info")
         return cls(
-            normalization=MapNormalization.model_validate(record["normalization"]),
-            intrinsics=PinholeIntrinsics.model_validate(record["intrinsics"]),
-            reference_poses=record["reference_poses"].double(),
-            metadata=dict(record["metadata"]),
+            normalization=validated(MapNormalization, entry(record, "normalization", dict, "map info"), "map info: normalization"),
+            intrinsics=validated(PinholeIntrinsics, entry(record, "intrinsics", dict, "map info"), "map info: intrinsics"),
+            reference_poses=tensor_of_shape(poses, (max(1, poses.shape[0]) if poses.dim() == 3 else 1, 4, 4), "map info: reference_poses").double(),
+            metadata=dict(entry(record, "metadata", dict, "map info")),
         )

@@ -17,6 +17,7 @@ import torch
 from locnerf.errors import MapFileError
 from locnerf.field.encoding import frequency_encoding
 from locnerf.field.map_info import MapInfo
+from locnerf.field.map_state import check_state_dict, entry
 from locnerf.field.stored_map import StoredMap
 
 NERF_PYTORCH_KIND = "nerf_pytorch"
@@ -153,10 +154,17 @@ class NerfPytorchMap(StoredMap):
 
     @classmethod
     def from_state(cls, state: dict[str, Any], info: MapInfo, device: torch.device) -> NerfPytorchMap:
-        """Networks from nerf-pytorch state dicts (a map-file state or a checkpoint's dicts)."""
+        """Networks from nerf-pytorch state dicts (a map-file state or a checkpoint's dicts).
+
+        Raises:
+            MapFileError: when a state dict is missing or its names or shapes differ from nerf-pytorch's
+                8x256 network with view directions.
+        """
         coarse, fine = NerfMLP(), NerfMLP()
-        coarse.load_state_dict(state["network_fn_state_dict"])
-        fine.load_state_dict(state["network_fine_state_dict"])
+        for network, key in ((coarse, "network_fn_state_dict"), (fine, "network_fine_state_dict")):
+            weights = entry(state, key, dict, "nerf-pytorch state")
+            check_state_dict(weights, network.state_dict(), f"nerf-pytorch state: {key} (expected nerf-pytorch's 8x256 layout with view directions)")
+            network.load_state_dict(weights)
         return cls(coarse.to(device).eval(), fine.to(device).eval(), info, bool(state.get("white_background", False)))
 
 
@@ -173,10 +181,9 @@ def load_nerf_pytorch_checkpoint(checkpoint: str | Path, info: MapInfo, white_ba
         content = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # truncated or not a torch archive
         raise MapFileError(f"checkpoint {path}: cannot be read as a nerf-pytorch checkpoint ({error})") from error
-    missing = [key for key in ("network_fn_state_dict", "network_fine_state_dict") if key not in content]
-    if missing:
-        raise MapFileError(f"checkpoint {path}: missing {', '.join(missing)} (expected a nerf-pytorch .tar with both networks)")
+    if not isinstance(content, dict):
+        raise MapFileError(f"checkpoint {path}: a {type(content).__name__}, expected a nerf-pytorch .tar dict with both networks")
     try:
         return NerfPytorchMap.from_state({**content, "white_background": white_background}, info, torch.device(device))
-    except RuntimeError as error:
-        raise MapFileError(f"checkpoint {path}: networks do not match nerf-pytorch's 8x256 layout with view directions ({error})") from error
+    except MapFileError as error:
+        raise MapFileError(f"checkpoint {path}: {error}") from None

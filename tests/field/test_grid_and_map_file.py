@@ -12,8 +12,9 @@ import torch
 
 from locnerf.field.grid import GridField, GridFieldConfig
 from locnerf.field.grid_map import GridMap
-from locnerf.field.map_file import FORMAT_VERSION, HEADER, MAGIC, MapFileError, load_map, save_map
+from locnerf.field.map_file import FORMAT_VERSION, HEADER, MAGIC, MapFileError, load_map, read_map_info, save_map
 from locnerf.field.map_info import MapInfo
+from locnerf.field.nerf_pytorch import NERF_PYTORCH_KIND, NerfMLP, NerfPytorchMap
 from locnerf.field.protocol import MapNormalization, RadianceMap
 from locnerf.maps.source import WORLD, map_identity, open_map
 from locnerf.render.camera import PinholeIntrinsics
@@ -237,3 +238,81 @@ def test_a_map_is_identified_by_the_checksum_of_its_content(generator: torch.Gen
     world = open_map(WORLD, torch.device("cpu"))
     assert map_identity(world) == ProceduralWorld.default().checksum != ProceduralWorld(WorldConfig(seed=8)).checksum
     assert len(world.checksum) == 64 and int(world.checksum, 16) >= 0
+
+
+def _archive_of(radiance_map: GridMap, tmp_path: Path) -> dict:
+    """The archive dict a saved ``radiance_map`` holds."""
+    return torch.load(io.BytesIO(save_map(radiance_map, tmp_path / "good.locmap").read_bytes()[HEADER.size :]), weights_only=True)
+
+
+def _crafted(archive: dict, path: Path) -> Path:
+    """``archive`` written as a version-2 map file with a correct checksum (the damage is in its content, not its bytes)."""
+    buffer = io.BytesIO()
+    torch.save(archive, buffer)
+    path.write_bytes(_with_header(buffer.getvalue()))
+    return path
+
+
+def _with_state(archive: dict, **changes) -> dict:
+    return {**archive, "state": {**archive["state"], **changes}}
+
+
+def _with_weights(archive: dict, **changes) -> dict:
+    return _with_state(archive, weights={**archive["state"]["weights"], **changes})
+
+
+def test_malformed_state_behind_a_valid_checksum_is_refused_with_its_reason(generator: torch.Generator, tmp_path: Path) -> None:
+    """A map file whose checksum holds but whose content is not a map's: refused as MapFileError naming the entry
+    (before: KeyError, RuntimeError from load_state_dict, or pydantic's error, not a MapFileError)."""
+    archive = _archive_of(_tiny_map(generator), tmp_path)
+    weights = archive["state"]["weights"]
+    info_without_poses = {key: value for key, value in archive["info"].items() if key != "reference_poses"}
+    cases = {
+        "missing weights": {**archive, "state": {k: v for k, v in archive["state"].items() if k != "weights"}},
+        "missing reference_poses": {**archive, "info": info_without_poses},
+        r"weights.grid: shape \(2196, 8\), expected \(2197, 8\)": _with_weights(archive, grid=weights["grid"][:-1]),
+        r"decoder.0.weight of shape \(64, 5\), expected \(64, 19\)": _with_weights(archive, **{"decoder.0.weight": weights["decoder.0.weight"][:, :5]}),
+        r"missing \['occupied_box'\]": _with_state(archive, weights={k: v for k, v in weights.items() if k != "occupied_box"}),
+        "entry 'box' is a list, expected Tensor": _with_state(archive, box=[[-1.0] * 3, [1.0] * 3]),
+        r"box .*expected low < high": _with_state(archive, box=torch.tensor([[1.0, -1.0, -1.0], [-1.0, 1.0, 1.0]])),
+        "reference_poses: shape": {**archive, "info": {**archive["info"], "reference_poses": torch.zeros(2, 3, 4, dtype=torch.float64)}},
+        "normalization: scale: Input should be greater than 0": {**archive, "info": {**archive["info"], "normalization": {"scale": -1.0}}},
+    }
+    for reason, content in cases.items():
+        with pytest.raises(MapFileError, match=f"bad.locmap: (grid state|map info).*{reason}"):
+            load_map(_crafted(content, tmp_path / "bad.locmap"))
+    with pytest.raises(MapFileError, match="bad.locmap: map info: missing reference_poses"):  # what `locnerf map info` reads
+        read_map_info(_crafted(cases["missing reference_poses"], tmp_path / "bad.locmap"))
+
+
+def test_a_grid_larger_than_the_file_holds_is_refused_before_it_is_allocated(generator: torch.Generator, tmp_path: Path) -> None:
+    """A crafted resolution or vertex budget cannot make loading allocate: above MAX_GRID_VERTICES (2**27) it is refused
+    as such, below it the stored grid must have that many vertices (before: the grid was allocated first, e.g. 10¹⁵
+    vertices for a resolution of 10⁵ per axis: a raw RuntimeError, or the machine's memory)."""
+    archive = _archive_of(_tiny_map(generator), tmp_path)
+    huge = _with_state(archive, resolution=[100_000, 100_000, 100_000])
+    with pytest.raises(MapFileError, match=r"resolution \[100000, 100000, 100000\] is 1000000000000000 vertices, more than the 134217728"):
+        load_map(_crafted(huge, tmp_path / "huge.locmap"))
+    budget = _with_state(archive, config={**archive["state"]["config"], "voxels": 10**12})
+    with pytest.raises(MapFileError, match="config: voxels: Input should be less than or equal to 134217728"):
+        load_map(_crafted(budget, tmp_path / "budget.locmap"))
+    unbacked = _with_state(archive, resolution=[300, 300, 300])  # 27M vertices (860 MB) the file does not hold
+    with pytest.raises(MapFileError, match=r"weights.grid: shape \(2197, 8\), expected \(27000000, 8\)"):
+        load_map(_crafted(unbacked, tmp_path / "unbacked.locmap"))
+    for resolution in ([12, 12], [12, 12, 1], [12.0, 12, 12]):
+        with pytest.raises(MapFileError, match="expected three integers >= 2"):
+            load_map(_crafted(_with_state(archive, resolution=resolution), tmp_path / "shape.locmap"))
+
+
+def test_a_nerf_pytorch_map_with_malformed_networks_is_refused(generator: torch.Generator, tmp_path: Path) -> None:
+    archive = _archive_of(_tiny_map(generator), tmp_path)
+    network = {name: value.detach().clone() for name, value in NerfMLP().state_dict().items()}
+    state = {"network_fn_state_dict": network, "network_fine_state_dict": network, "white_background": False}
+    nerf = {**archive, "kind": NERF_PYTORCH_KIND, "state": state}
+    assert isinstance(load_map(_crafted(nerf, tmp_path / "nerf.locmap")), NerfPytorchMap)
+    without_fine = {**nerf, "state": {k: v for k, v in state.items() if k != "network_fine_state_dict"}}
+    with pytest.raises(MapFileError, match="nerf.locmap: nerf-pytorch state: missing network_fine_state_dict"):
+        load_map(_crafted(without_fine, tmp_path / "nerf.locmap"))
+    narrow = {**nerf, "state": {**state, "network_fn_state_dict": {**network, "rgb_linear.weight": torch.zeros(3, 64)}}}
+    with pytest.raises(MapFileError, match=r"rgb_linear.weight of shape \(3, 64\), expected \(3, 128\)"):
+        load_map(_crafted(narrow, tmp_path / "nerf.locmap"))
