@@ -51,6 +51,12 @@ def fully_qualified_name(name: str, namespace: str = "") -> str:
     return f"{prefix}/{name}"
 
 
+def normalise_namespace(namespace: str) -> str:
+    """A node namespace as ROS writes it: ``robot1``, ``/robot1/`` -> ``/robot1``; ``""`` and ``/`` -> ``""`` (global)."""
+    stripped = namespace.strip("/")
+    return f"/{stripped}" if stripped else ""
+
+
 def mangle(name: str) -> str:
     """rmw_zenoh's mangled name: every ``/`` replaced by ``%``; an empty name is ``%``."""
     return name.replace("/", "%") if name else "%"
@@ -93,7 +99,7 @@ class NodeIdentity:
         domain_id: ROS_DOMAIN_ID.
         session_id: the Zenoh session id, lowercase hex (as ``str(session.info.zid())``).
         node_name: e.g. ``locnerf``.
-        namespace: e.g. ``""`` or ``/robot1``.
+        namespace: e.g. ``""`` or ``/robot1`` (normalised: ``robot1`` and ``/robot1/`` become ``/robot1``).
         enclave: SROS enclave (``""`` when none).
         node_id: the node's id within the session.
     """
@@ -104,6 +110,9 @@ class NodeIdentity:
     namespace: str = ""
     enclave: str = ""
     node_id: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "namespace", normalise_namespace(self.namespace))
 
     def _prefix(self, entity_id: int, kind: EntityKind) -> str:
         chunks = (ADMIN_SPACE, str(self.domain_id), self.session_id, str(self.node_id), str(entity_id), kind.value)

@@ -9,13 +9,15 @@ pins that their hashes agree) with two changes:
 * ``std_srvs/srv/Empty`` (not in rosbags' stores) is registered as rosidl describes a service: a
   struct of ``request_message``, ``response_message`` and ``event_message`` whose event message is
   ``info``, ``request[<=1]``, ``response[<=1]`` (REP-2016), so rosbags can hash it.
+* ``nav2_msgs/msg/Particle`` and ``nav2_msgs/msg/ParticleCloud`` (not in rosbags' stores) are
+  registered from their .msg text, so rosbags serialises and hashes them as any other type.
 """
 
 from __future__ import annotations
 
 from functools import cache
 
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
 from rosbags.typesys.store import Typestore
 
@@ -25,6 +27,15 @@ EMPTY_SERVICE = "std_srvs/srv/Empty"
 
 
 SERVICE_EVENT_INFO = "service_msgs/msg/ServiceEventInfo"
+
+NAV2_PARTICLE = "nav2_msgs/msg/Particle"
+NAV2_PARTICLE_CLOUD = "nav2_msgs/msg/ParticleCloud"
+NAV2_DEFINITIONS = {
+    NAV2_PARTICLE: "geometry_msgs/Pose pose\nfloat64 weight\n",
+    NAV2_PARTICLE_CLOUD: "std_msgs/Header header\nParticle[] particles\n",
+}
+"""nav2_msgs' .msg text (navigation2's nav2_msgs/msg/Particle.msg, ParticleCloud.msg, comments left out):
+what nav2_amcl publishes on ``particle_cloud`` and RViz's nav2 particle cloud display reads."""
 
 
 def service_definitions(service: str, request_fields: list, response_fields: list) -> dict:
@@ -42,7 +53,7 @@ def service_definitions(service: str, request_fields: list, response_fields: lis
 
 
 def build_typestore() -> Typestore:
-    """A new type store: Kilted's definitions, ServiceEventInfo corrected, std_srvs/srv/Empty added."""
+    """A new type store: Kilted's definitions, ServiceEventInfo corrected, std_srvs/srv/Empty and nav2_msgs' particle cloud added."""
     definitions = dict(get_typestore(Stores.ROS2_KILTED).fielddefs)
     constants, fields = definitions[SERVICE_EVENT_INFO]
     uint8_gid = (Nodetype.ARRAY, ((Nodetype.BASE, ("uint8", 0)), 16))
@@ -50,6 +61,8 @@ def build_typestore() -> Typestore:
     store = get_typestore(Stores.EMPTY)
     store.register({name: value for name, value in definitions.items() if name not in store.fielddefs})
     store.register(service_definitions(EMPTY_SERVICE, [], []))
+    for name, text in NAV2_DEFINITIONS.items():
+        store.register(get_types_from_msg(text, name))
     return store
 
 

@@ -66,7 +66,14 @@ class Ros2Config(BaseModel):
         "initialpose", description="geometry_msgs/msg/PoseWithCovarianceStamped of base_frame_id in global_frame_id (RViz's 2D Pose Estimate)."
     )
     pose_topic: str = Field("amcl_pose", description="geometry_msgs/msg/PoseWithCovarianceStamped published at the odometry rate.")
-    particles_topic: str = Field("particle_cloud", description="geometry_msgs/msg/PoseArray of the particles (base frame poses).")
+    particles_topic: str = Field(
+        "particle_cloud", description="nav2_msgs/msg/ParticleCloud of the particles (base frame poses and normalised weights), as nav2_amcl."
+    )
+    legacy_particles_topic: str = Field(
+        "",
+        description="Also publish the particles as a geometry_msgs/msg/PoseArray on this topic (nav2_amcl's former 'particlecloud', "
+        "for RViz's PoseArray display); '' = not published.",
+    )
     tf_topic: str = Field("/tf", description="tf2_msgs/msg/TFMessage carrying global_frame_id -> odom_frame_id.")
     global_localization_service: str = Field(
         "reinitialize_global_localization", description="std_srvs/srv/Empty service that re-initialises over the whole map."

@@ -46,7 +46,7 @@ EPOCH = 1_700_000_000.0  # ROS stamps are UNIX time: the stream's stamps are off
 TRACKED_TRANSLATION, TRACKED_ROTATION_DEG = 0.15, 3.0
 OUTPUTS = {
     "amcl_pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
-    "particle_cloud": "geometry_msgs/msg/PoseArray",
+    "particle_cloud": "nav2_msgs/msg/ParticleCloud",
     "tf": "tf2_msgs/msg/TFMessage",
 }
 TOKENS = {  # (kind, topic, type) the filter's node must announce
@@ -185,7 +185,7 @@ def test_ros2_topics_in_and_out_converge_count_bad_input_and_serve_the_service(h
             transforms = {nanoseconds(m.transforms[0].header.stamp) - 1_000_000_000: m.transforms[0] for m in ros.received["tf"]}
             pose = next(m for m in reversed(ros.received["amcl_pose"]) if nanoseconds(m.header.stamp) in transforms)
             tf, cloud = transforms[nanoseconds(pose.header.stamp)], ros.received["particle_cloud"]
-        assert (tf.header.frame_id, tf.child_frame_id) == ("map", "odom") and cloud and len(cloud[-1].poses) > 0
+        assert (tf.header.frame_id, tf.child_frame_id) == ("map", "odom") and cloud and len(cloud[-1].particles) > 0
         rotation, translation = tf.transform.rotation, tf.transform.translation
         as_pose = message_class("geometry_msgs/msg/Pose")(
             position=message_class("geometry_msgs/msg/Point")(translation.x, translation.y, translation.z), orientation=rotation

@@ -21,6 +21,7 @@ from locnerf.ros2.naming import (
     data_pattern,
     fully_qualified_name,
     mangle,
+    normalise_namespace,
 )
 from locnerf.ros2.types import (
     build_typestore,
@@ -98,6 +99,28 @@ def test_liveliness_tokens_match_the_design_document_examples():
     assert mangle("/robot1/cmd_vel") == "%robot1%cmd_vel" and mangle("") == "%"
     namespaced = NodeIdentity(domain_id=0, session_id="ab", node_name="locnerf", namespace="/robot1")
     assert namespaced.node_token() == "@ros2_lv/0/ab/0/0/NN/%/%robot1/locnerf"
+
+
+def test_a_namespace_without_its_leading_slash_or_with_a_trailing_one_is_normalised():
+    """``robot1`` and ``/robot1/`` name the namespace ``/robot1``: the token's mangled namespace is
+    ``%robot1``, as for ``/robot1`` (``robot1`` gave ``robot1`` and ``/robot1/`` ``%robot1%``)."""
+    for written in ("robot1", "/robot1/", "robot1/"):
+        identity = NodeIdentity(domain_id=0, session_id="ab", node_name="locnerf", namespace=written)
+        assert identity.namespace == "/robot1" and identity.node_token() == "@ros2_lv/0/ab/0/0/NN/%/%robot1/locnerf", written
+    assert normalise_namespace("/") == normalise_namespace("") == ""
+    assert NodeIdentity(domain_id=0, session_id="ab", node_name="n", namespace="a/b/").node_token().endswith("/%a%b/n")
+
+
+def test_nav2_particle_cloud_is_registered_from_its_msg_text():
+    """nav2_msgs/ParticleCloud = Header header, Particle[] particles; Particle = Pose pose, float64 weight
+    (navigation2's .msg files); its key carries its DDS name and its own RIHS01 hash, not PoseArray's."""
+    fields = build_typestore().fielddefs
+    assert fields["nav2_msgs/msg/Particle"] == ([], [("pose", (Nodetype.NAME, "geometry_msgs/msg/Pose")), ("weight", (Nodetype.BASE, ("float64", 0)))])
+    particles = (Nodetype.SEQUENCE, ((Nodetype.NAME, "nav2_msgs/msg/Particle"), 0))
+    assert fields["nav2_msgs/msg/ParticleCloud"] == ([], [("header", (Nodetype.NAME, "std_msgs/msg/Header")), ("particles", particles)])
+    key = data_key(0, "/particle_cloud", "nav2_msgs/msg/ParticleCloud")
+    assert key.startswith("0/particle_cloud/nav2_msgs::msg::dds_::ParticleCloud_/RIHS01_") and len(key.rsplit("/", 1)[1]) == len(STRING_HASH)
+    assert type_hash("nav2_msgs/msg/ParticleCloud") not in (type_hash("geometry_msgs/msg/PoseArray"), type_hash("nav2_msgs/msg/Particle"))
 
 
 def test_attachment_layout_is_the_zenoh_ext_serialisation_of_two_int64_and_the_gid():
