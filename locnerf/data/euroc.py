@@ -75,7 +75,8 @@ def _yaml_numbers(storage: cv2.FileStorage, name: str, path: Path, count: int) -
 
 
 def read_camera(sensor_yaml: Path) -> EurocCamera:
-    """Calibration from a EuRoC ``sensor.yaml``.
+    """Calibration from a EuRoC ``sensor.yaml`` (Kalibr's intrinsics are OpenCV's, pixel centres at
+    integer coordinates, the library's convention: taken as they are).
 
     Raises:
         FileNotFoundError / DatasetError: naming the file and the missing or unsupported entry.

@@ -121,7 +121,8 @@ def read_llff(folder: str | Path, downscale: int = 8, split: str = "all", holdou
     focal = full_focal * width / full_width
     if abs(height / width - full_height / full_width) > 0.02:
         raise DatasetError(f"{image_folder}: images {width}x{height} do not match the aspect of the poses' {full_width:.0f}x{full_height:.0f}")
-    intrinsics = PinholeIntrinsics(fx=focal, fy=focal, cx=width / 2.0, cy=height / 2.0, width=width, height=height)
+    # hwf says nothing of the principal point: LLFF (and COLMAP's default) put it at the image centre.
+    intrinsics = PinholeIntrinsics.centred(focal, focal, width, height)
     normalization = MapNormalization(T_map_dataset=T_map_scaled.tolist(), scale=scale, ndc=True, near=float(bounds.min() * 0.9), far=float(bounds.max()))
     logger.info("LLFF %s: %d images %dx%d, scale %.4f", folder, len(positions), width, height, scale)
     return PosedImages(

@@ -193,7 +193,7 @@ def _depth_box(frames: list[dict[str, Any]], poses: np.ndarray, camera: PinholeI
             raise DatasetError(f"depth image {depth_path}: {width}x{height}, expected the aspect of the {camera.width}x{camera.height} images")
         step = bounds_pixel_step(width, height)
         sampled = torch.from_numpy(np.ascontiguousarray(depth[::step, ::step]))[None]
-        points.append(depth_points(sampled, torch.from_numpy(poses[i : i + 1]), camera.scaled(width / camera.width / step)))
+        points.append(depth_points(sampled, torch.from_numpy(poses[i : i + 1]), camera.scaled(width / camera.width).decimated(step)))
     return points_box(torch.cat(points), f"{path}: the depth images")
 
 

@@ -10,6 +10,9 @@ Cameras: 7-Scenes ships no colour intrinsics; the customary fx = fy = 525, cx = 
 camera's (585 px at 640×480; that value is the fallback). Colour and depth are not registered and
 the poses are the depth camera's; as is usual practice the poses serve both, and each image keeps
 its own camera: depth pixels become rays of the depth camera, never resampled onto the colour grid.
+Both matrices are taken as OpenCV's (pixel centres at integers). Colour images are area-resized by
+``downscale`` (``cx' = (cx + 0.5)/downscale - 0.5``: 79.625 at ÷4); depth images are subsampled
+(every k-th pixel, ``cx' = cx/k``), see :class:`~locnerf.render.camera.PinholeIntrinsics`.
 
 Scale: the map frame is the data set's world frame in metres (scale 1, identity transform). The
 scene box holds the camera centres and the back-projected depth points (cameras look from inside
@@ -180,7 +183,7 @@ def scene_box(T_world_cam: torch.Tensor, depths: torch.Tensor | None, camera: Pi
         return torch.stack((low - NO_DEPTH_REACH_M, high + NO_DEPTH_REACH_M))
     frames = max(1, len(depths) // BOUNDS_FRAMES)
     step = bounds_pixel_step(camera.width, camera.height)
-    points = depth_points(depths[::frames, ::step, ::step], T_world_cam[::frames], camera.scaled(1.0 / step))
+    points = depth_points(depths[::frames, ::step, ::step], T_world_cam[::frames], camera.decimated(step))
     if len(points):
         quantiles = percentile_box(points)
         low, high = torch.minimum(low, quantiles[0]), torch.maximum(high, quantiles[1])
@@ -243,7 +246,8 @@ def read_seven_scenes(
                     f"expected {first.shape[1]}x{first.shape[0]} like {depth_paths[0]}"
                 )
         depths = torch.from_numpy(np.stack(stack))
-        depth_camera = _depth_camera(folder, intrinsics).scaled(1.0 / (ratio * depth_stride))
+        # Stored depth smaller than colour is every ratio-th pixel of the full frame, read every depth_stride-th.
+        depth_camera = _depth_camera(folder, intrinsics).decimated(ratio * depth_stride)
     box = scene_box(T_world_cam, depths, depth_camera)
     far = float((box[1] - box[0]).norm())
     normalization = MapNormalization(near=NEAR_M, far=far, up=_up_axis(folder))

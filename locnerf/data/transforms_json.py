@@ -3,7 +3,14 @@
 Both store OpenGL camera-to-world matrices per frame (``transform_matrix``). NeRF-synthetic gives
 one ``camera_angle_x`` and RGBA images of an object inside the cube [-1.5, 1.5]³; nerfstudio gives
 ``fl_x, fl_y, cx, cy, w, h`` at the top level or per frame, and optionally OpenCV distortion
-``k1 k2 (k3 k4) p1 p2``, which is removed here so that every image is an ideal pinhole image.
+``k1 k2 k3 p1 p2``, which is removed here so that every image is an ideal pinhole image.
+
+Cameras: only nerfstudio's perspective ``camera_model`` values (:data:`PERSPECTIVE_MODELS`, and no
+``camera_model``, which nerfstudio reads as ``OPENCV``) are read; a fisheye, equirectangular or other
+projection is refused, as is a non-zero ``k4`` (nerfstudio's r⁸ radial term, which OpenCV's model
+lacks). ``cx, cy`` are in the corner convention (the top-left pixel's centre at (0.5, 0.5), so
+``cx = w/2`` for a centred camera; nerfstudio and instant-ngp cast rays through ``pixel + 0.5``) and
+become the library's pixel-centre convention here (:mod:`locnerf.render.camera`): ``cx - 0.5``.
 """
 
 from __future__ import annotations
@@ -31,6 +38,8 @@ SYNTHETIC_BOUNDS = 1.5
 SYNTHETIC_NEAR, SYNTHETIC_FAR = 2.0, 6.0
 HOLDOUT_EVERY = 8
 BACKGROUNDS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
+PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+"""nerfstudio ``camera_model`` values of a pinhole camera with (at most) OpenCV radial-tangential distortion."""
 
 
 def _load_json(path: Path) -> dict[str, Any]:
@@ -124,10 +133,27 @@ def _present_frames(frames: list[dict[str, Any]], folder: Path, path: Path, skip
 
 
 def _frame_camera(content: dict[str, Any], frame: dict[str, Any], path: Path) -> tuple[PinholeIntrinsics, np.ndarray]:
-    """Intrinsics and OpenCV distortion (k1, k2, p1, p2, k3, k4) of one frame (frame keys override shared ones)."""
+    """Intrinsics (pixel-centre convention) and OpenCV distortion (k1, k2, p1, p2, k3) of one frame
+    (frame keys override shared ones).
+
+    Raises:
+        DatasetError: naming the file and frame, for a camera that is not a perspective one, a non-zero
+            ``k4``, or missing size or focal length.
+    """
 
     def value(key: str) -> Any:
         return frame.get(key, content.get(key))
+
+    model = value("camera_model")
+    if model is not None and str(model).upper() not in PERSPECTIVE_MODELS:
+        raise DatasetError(
+            f"{path}: frame {frame.get('file_path')} has camera_model {model!r}: expected a perspective camera, one of {PERSPECTIVE_MODELS} "
+            "(fisheye, equirectangular and other projections are not read; undistort such images to a pinhole camera first)"
+        )
+    if float(value("k4") or 0.0):
+        raise DatasetError(
+            f"{path}: frame {frame.get('file_path')} has k4={value('k4')}: expected none or 0 (nerfstudio's r^8 radial term has no OpenCV equivalent)"
+        )
 
     width, height = value("w"), value("h")
     if width is None or height is None:
@@ -139,20 +165,20 @@ def _frame_camera(content: dict[str, Any], frame: dict[str, Any], path: Path) ->
         fx = fy = 0.5 * float(width) / math.tan(0.5 * float(value("camera_angle_x")))
     else:
         raise DatasetError(f"{path}: frame {frame.get('file_path')} has no intrinsics (fl_x/fl_y or camera_angle_x)")
-    cx = float(value("cx") if value("cx") is not None else width / 2.0)
-    cy = float(value("cy") if value("cy") is not None else height / 2.0)
+    # Corner convention in the file (centred: w/2), pixel centres at integers here.
+    cx = float(value("cx") if value("cx") is not None else width / 2.0) - 0.5
+    cy = float(value("cy") if value("cy") is not None else height / 2.0) - 0.5
     intrinsics = PinholeIntrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=int(width), height=int(height))
-    distortion = np.array([float(value(k) or 0.0) for k in ("k1", "k2", "p1", "p2", "k3", "k4")])
+    distortion = np.array([float(value(k) or 0.0) for k in ("k1", "k2", "p1", "p2", "k3")])
     return intrinsics, distortion
 
 
 def _undistort(image: np.ndarray, intrinsics: PinholeIntrinsics, distortion: np.ndarray) -> np.ndarray:
-    """The ideal pinhole image with the same intrinsics (OpenCV radial-tangential model)."""
+    """The ideal pinhole image with the same intrinsics (OpenCV radial-tangential model, coefficients (k1, k2, p1, p2, k3))."""
     if not distortion.any():
         return image
-    coefficients = distortion[[0, 1, 2, 3, 4]] if not distortion[5] else np.concatenate([distortion[:5], [distortion[5], 0.0, 0.0]])
     matrix = intrinsics.matrix().numpy()
-    return cv2.undistort(image, matrix, coefficients, None, matrix)
+    return cv2.undistort(image, matrix, distortion, None, matrix)
 
 
 def read_nerfstudio(

@@ -83,7 +83,14 @@ class KeyframeIndex:
 
 
 def _relative_intrinsics(intrinsics: PinholeIntrinsics) -> tuple[float, float, float, float]:
-    return (intrinsics.fx / intrinsics.width, intrinsics.fy / intrinsics.height, intrinsics.cx / intrinsics.width, intrinsics.cy / intrinsics.height)
+    """Focal lengths and principal point as fractions of the image's extent: unchanged by resizing
+    (the principal point measured from the image's edge, ``cx + 0.5``; see :meth:`PinholeIntrinsics.scaled`)."""
+    return (
+        intrinsics.fx / intrinsics.width,
+        intrinsics.fy / intrinsics.height,
+        (intrinsics.cx + 0.5) / intrinsics.width,
+        (intrinsics.cy + 0.5) / intrinsics.height,
+    )
 
 
 def nearest_neighbour_spacing(positions: torch.Tensor) -> float:

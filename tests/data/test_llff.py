@@ -26,7 +26,8 @@ def test_images_intrinsics_and_normalisation(shared_data: Path) -> None:
     assert fern.images.shape == (20, 378, 504, 3)
     assert 0.0 <= float(fern.images.min()) and float(fern.images.max()) <= 1.0
     assert fern.intrinsics.fx == pytest.approx(3260.52633 / 8, rel=1e-4)
-    assert (fern.intrinsics.cx, fern.intrinsics.cy) == (252.0, 189.0)
+    # LLFF's principal point is the image centre: (W - 1)/2, (H - 1)/2 with pixel centres at integers.
+    assert (fern.intrinsics.cx, fern.intrinsics.cy) == (251.5, 188.5)
     assert fern.normalization.ndc
     # nerf-pytorch scales by 1 / (0.75 · min near bound): the smallest near bound becomes 1/0.75.
     raw = np.load(shared_data / "llff" / "fern" / "poses_bounds.npy")

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from locnerf.data import dataset_format, read_dataset, read_seven_scenes
-from locnerf.data.seven_scenes import depth_points
+from locnerf.data.seven_scenes import COLOUR_INTRINSICS, depth_points
 from locnerf.geometry.frames import opencv_to_opengl
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -57,7 +57,8 @@ def test_reads_splits_axes_depth_and_cameras(tmp_path: Path) -> None:
     assert train.names == ["seq-01/frame-000000", "seq-01/frame-000001", "seq-01/frame-000002"]
     assert len(test) == 3 and set(train.indices).isdisjoint(test.indices)
     assert train.images.shape == (3, 3, 4, 3)
-    assert train.intrinsics == CAMERA.scaled(0.5)
+    # Area-halved 8x6 colour: f/2, (c + 0.5)/2 - 0.5 (pixel centres at integers).
+    assert (train.intrinsics.fx, train.intrinsics.cx, train.intrinsics.cy, train.intrinsics.width) == (3.0, 1.75, 1.25, 4)
     expected = opencv_to_opengl(torch.from_numpy(np.stack([_pose(i) for i in range(3)])))
     torch.testing.assert_close(train.T_world_cam, expected)
     torch.testing.assert_close(train.images[1], torch.full((3, 4, 3), 10 / 255))
@@ -67,6 +68,7 @@ def test_reads_splits_axes_depth_and_cameras(tmp_path: Path) -> None:
     assert float(train.depths[2, 1, 1]) == pytest.approx(1.2)
     assert float(train.depths[2, 0, 0]) == 0.0
     assert train.depth_intrinsics.width == 4 and train.depth_intrinsics.fx == pytest.approx(585.0 / 2)
+    assert (train.depth_intrinsics.cx, train.depth_intrinsics.cy) == (2.0, 1.5)  # the 4x3 depth is every 2nd pixel of 8x6
     assert train.normalization.scale == 1.0 and train.normalization.up == (0.0, -1.0, 0.0)
     # The box holds every camera centre and every back-projected depth point.
     points = depth_points(train.depths, train.T_world_cam, train.depth_intrinsics)
@@ -215,6 +217,11 @@ def test_real_redkitchen_frames(shared_data: Path) -> None:
     assert kitchen.names == [f"seq-02/frame-{n:06d}" for n in (600, 700, 800, 900)]
     assert kitchen.images.shape == (4, 60, 80, 3) and kitchen.depths.shape == (4, 60, 80)
     assert kitchen.intrinsics.fx == pytest.approx(525 / 8) and kitchen.depth_intrinsics.fx == pytest.approx(585 / 8)
+    # Colour area-resized by 8: (320 + 0.5)/8 - 0.5 = 39.5625 (not 320/8 = 40); depth taken every 8th
+    # pixel from camera-intrinsics.txt's (320, 240): pixel 0 stays pixel 0, so 320/8 = 40.
+    assert (kitchen.intrinsics.cx, kitchen.intrinsics.cy) == (39.5625, 29.5625)
+    assert (COLOUR_INTRINSICS.scaled(1 / 4).cx, COLOUR_INTRINSICS.scaled(1 / 4).cy) == (79.625, 59.625)  # the default ÷4
+    assert (kitchen.depth_intrinsics.cx, kitchen.depth_intrinsics.cy) == (40.0, 30.0)
     valid = kitchen.depths[kitchen.depths > 0]
     assert 0.4 < float(valid.min()) and float(valid.max()) < 8.0 and len(valid) > 0.5 * kitchen.depths.numel()
     # The file's gravity (world frame) is nearly perpendicular to the hand-held camera's x axes (roll

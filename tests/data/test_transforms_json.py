@@ -21,6 +21,7 @@ def test_nerf_synthetic_split_composited_and_downscaled(shared_data: Path) -> No
     assert views.images.shape == (7, 100, 100, 3)
     content = json.loads((lego / "transforms_val.json").read_text())
     assert views.intrinsics.fx == pytest.approx(50.0 / math.tan(0.5 * content["camera_angle_x"]))
+    assert (views.intrinsics.cx, views.intrinsics.cy) == (49.5, 49.5)  # Blender's centred camera, 100x100
     torch.testing.assert_close(views.T_world_cam[0], torch.tensor(content["frames"][0]["transform_matrix"], dtype=torch.float64))
     # Corners are transparent background: white after compositing, black on black.
     assert float(views.images[:, 0, 0].min()) == pytest.approx(1.0)
@@ -69,12 +70,14 @@ def test_nerfstudio_undistorts_and_downscales(tmp_path: Path) -> None:
     camera = {"fl_x": 50.0, "fl_y": 52.0, "cx": 29.0, "cy": 21.0, "w": 60, "h": 40, "k1": 0.1, "k2": -0.02, "p1": 0.001, "p2": 0.002}
     path = _write_nerfstudio(tmp_path / "ns", camera, _frames(3), images)
     views = read_nerfstudio(path)
-    matrix = np.array([[50.0, 0, 29.0], [0, 52.0, 21.0], [0, 0, 1]])
+    # The file's principal point is in the corner convention: OpenCV's (pixel centres at integers) is 0.5 less.
+    assert (views.intrinsics.cx, views.intrinsics.cy) == (28.5, 20.5)
+    matrix = np.array([[50.0, 0, 28.5], [0, 52.0, 20.5], [0, 0, 1]])
     expected = cv2.undistort(images[1][:, :, ::-1].astype(np.float32) / 255.0, matrix, np.array([0.1, -0.02, 0.001, 0.002, 0.0]), None, matrix)
     np.testing.assert_allclose(views.images[1].numpy(), expected, atol=1e-6)
     half = read_nerfstudio(tmp_path / "ns", downscale=2)
     assert half.images.shape == (3, 20, 30, 3)
-    assert (half.intrinsics.fx, half.intrinsics.cx) == (25.0, 14.5)
+    assert (half.intrinsics.fx, half.intrinsics.cx) == (25.0, 14.0)  # corner 29 -> 14.5 at half size -> 14.0
 
 
 def test_nerfstudio_per_frame_intrinsics_and_refusals(tmp_path: Path) -> None:
@@ -82,6 +85,7 @@ def test_nerfstudio_per_frame_intrinsics_and_refusals(tmp_path: Path) -> None:
     frames = [dict(f, fl_x=9.0, w=10, h=8) for f in _frames(2)]
     views = read_nerfstudio(_write_nerfstudio(tmp_path / "a", {}, frames, images))
     assert views.intrinsics.fx == views.intrinsics.fy == 9.0
+    assert (views.intrinsics.cx, views.intrinsics.cy) == (4.5, 3.5)  # no cx, cy: the centre of the 10x8 image
     with pytest.raises(ValueError, match="no intrinsics"):
         read_nerfstudio(_write_nerfstudio(tmp_path / "b", {"w": 10, "h": 8}, _frames(2), images))
     mixed = [np.zeros((8, 10, 3), np.uint8), np.zeros((9, 10, 3), np.uint8)]
@@ -96,3 +100,23 @@ def test_nerfstudio_per_frame_intrinsics_and_refusals(tmp_path: Path) -> None:
     (path.parent / "frame_001.png").unlink()
     with pytest.raises(FileNotFoundError, match="frame_001.png"):
         read_nerfstudio(path)
+
+
+@pytest.mark.parametrize("model", ["OPENCV_FISHEYE", "EQUIRECTANGULAR", "FISHEYE624"])
+def test_nerfstudio_refuses_cameras_that_are_not_perspective(tmp_path: Path, model: str) -> None:
+    images = [np.zeros((8, 10, 3), np.uint8)] * 2
+    path = _write_nerfstudio(tmp_path / "ns", {"camera_model": model, "fl_x": 9.0, "w": 10, "h": 8, "k1": 0.1}, _frames(2), images)
+    with pytest.raises(ValueError, match=rf"transforms\.json: frame frame_000\.png has camera_model '{model}': expected a perspective camera"):
+        read_nerfstudio(path)
+    per_frame = [dict(f, camera_model=model) if i == 1 else f for i, f in enumerate(_frames(2))]
+    with pytest.raises(ValueError, match=rf"frame frame_001\.png has camera_model '{model}'"):
+        read_nerfstudio(_write_nerfstudio(tmp_path / "frame", {"camera_model": "OPENCV", "fl_x": 9.0, "w": 10, "h": 8}, per_frame, images))
+
+
+def test_nerfstudio_reads_perspective_models_and_refuses_k4(tmp_path: Path) -> None:
+    images = [np.zeros((8, 10, 3), np.uint8)] * 2
+    for model in ("PINHOLE", "OPENCV", "SIMPLE_RADIAL"):
+        views = read_nerfstudio(_write_nerfstudio(tmp_path / model, {"camera_model": model, "fl_x": 9.0, "w": 10, "h": 8}, _frames(2), images))
+        assert views.intrinsics.fx == 9.0
+    with pytest.raises(ValueError, match="has k4=0.01: expected none or 0"):
+        read_nerfstudio(_write_nerfstudio(tmp_path / "k4", {"camera_model": "OPENCV", "fl_x": 9.0, "w": 10, "h": 8, "k4": 0.01}, _frames(2), images))
