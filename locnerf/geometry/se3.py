@@ -62,6 +62,20 @@ def relative_pose(pose_a: torch.Tensor, pose_b: torch.Tensor) -> torch.Tensor:
     return pose_inverse(pose_a) @ pose_b
 
 
+def adjoint(pose: torch.Tensor) -> torch.Tensor:
+    """Adjoint (6, 6) float64 of a pose (4, 4) for (rotation, translation) tangents: ``T Exp(δ) T⁻¹ = Exp(Ad_T δ)``.
+
+    ``Ad_T = [[R, 0], [t^ R, R]]``. A covariance Σ of a right perturbation of ``X`` becomes
+    ``Ad_{O⁻¹} Σ Ad_{O⁻¹}ᵀ`` for ``X · O`` (``X Exp(δ) O = X O Exp(Ad_{O⁻¹} δ)``).
+    """
+    rotation, translation = pose[:3, :3].double(), pose[:3, 3].double()
+    out = torch.zeros(6, 6, dtype=torch.float64)
+    out[:3, :3] = rotation
+    out[3:, 3:] = rotation
+    out[3:, :3] = hat(translation) @ rotation
+    return out
+
+
 def interpolate_pose(start: torch.Tensor, end: torch.Tensor, fraction: float) -> torch.Tensor:
     """Geodesic interpolation ``start · Exp(fraction · Log(start⁻¹ end))`` of poses (..., 4, 4): 0 gives start, 1 end."""
     return start @ se3_exp(fraction * se3_log(relative_pose(start, end)))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import enum
 import math
-from typing import Annotated
+from typing import Annotated, Any
 
 import torch
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -17,6 +17,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validat
 from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.measurement import ExposureGainRange, MeasurementConfig
 from locnerf.geometry.validation import validate_pose_setting
+from locnerf.messages.stamps import NANOSECONDS_PER_SECOND, nanoseconds_from_seconds, seconds_from_nanoseconds
 from locnerf.render.camera import PinholeIntrinsics
 
 Matrix = list[list[float]]
@@ -66,12 +67,34 @@ class _Wire(BaseModel):
 MAX_ABS_STAMP = 1e10
 """Largest accepted |stamp|, seconds (Unix time of the year 2286): beyond it a stamp is garbage."""
 
+STAMP_AGREEMENT = 1e-6
+"""Largest accepted |stamp − stamp_ns·1e-9|, seconds: float seconds below MAX_ABS_STAMP round whole nanoseconds by at most 0.95 µs."""
+
 
 class Stamped(_Wire):
-    """Base of time-stamped messages."""
+    """Base of time-stamped messages. A sender gives ``stamp``, ``stamp_ns`` or both (they must agree
+    to within STAMP_AGREEMENT); the missing one is derived (:mod:`locnerf.messages.stamps`)."""
 
-    stamp: float = Field(description="Time of the measurement or state, seconds (sensor clock).")
+    stamp: float = Field(description="Time of the measurement or state, seconds (sensor clock): stamp_ns / 1e9, rounded to a double.")
+    stamp_ns: int = Field(
+        description="The same time in whole nanoseconds, exact: a ROS 2 stamp (sec, nanosec) passes through unchanged, where float "
+        "seconds near 1.7e9 s are 238 ns apart. Outputs take their input's stamp_ns."
+    )
     frame_id: str = Field("map", description="Frame the pose or data refer to.")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _derive_missing_stamp(cls, data: Any) -> Any:
+        """Fill the missing one of ``stamp`` and ``stamp_ns`` from the other (when that one is a finite number; the fields' own checks report the rest)."""
+        if not isinstance(data, dict) or ("stamp" in data) == ("stamp_ns" in data):
+            return data
+        if "stamp" in data:
+            seconds = data["stamp"]
+            if isinstance(seconds, int | float) and not isinstance(seconds, bool) and math.isfinite(seconds):
+                return {**data, "stamp_ns": nanoseconds_from_seconds(seconds)}
+        elif type(data["stamp_ns"]) is int:
+            return {**data, "stamp": seconds_from_nanoseconds(data["stamp_ns"])}
+        return data
 
     @field_validator("stamp")
     @classmethod
@@ -79,6 +102,19 @@ class Stamped(_Wire):
         if not math.isfinite(value) or abs(value) >= MAX_ABS_STAMP:
             raise ValueError(f"stamp={value}: expected a finite number of seconds below {MAX_ABS_STAMP:g} in magnitude")
         return value
+
+    @field_validator("stamp_ns")
+    @classmethod
+    def _bounded_stamp_ns(cls, value: int) -> int:
+        if abs(value) >= int(MAX_ABS_STAMP) * NANOSECONDS_PER_SECOND:
+            raise ValueError(f"stamp_ns={value}: expected whole nanoseconds below {MAX_ABS_STAMP:g} s in magnitude")
+        return value
+
+    @model_validator(mode="after")
+    def _stamps_agree(self) -> Stamped:
+        if abs(self.stamp - seconds_from_nanoseconds(self.stamp_ns)) > STAMP_AGREEMENT:
+            raise ValueError(f"stamp={self.stamp} s and stamp_ns={self.stamp_ns}: expected the same time (to {STAMP_AGREEMENT:g} s)")
+        return self
 
 
 def _check_size(width: int, height: int, intrinsics: PinholeIntrinsics, name: str) -> None:

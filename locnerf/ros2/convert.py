@@ -10,16 +10,14 @@ covariance as ``(x, y, z, rotation about X, rotation about Y, rotation about Z)`
 
 from __future__ import annotations
 
-import math
-
 import cv2
 import numpy as np
 import torch
 
 from locnerf.geometry.quaternion import matrix_to_quaternion, quaternion_to_matrix
 from locnerf.geometry.se3 import make_pose
-from locnerf.geometry.so3 import hat
 from locnerf.messages.codec import DecodeError
+from locnerf.messages.stamps import NANOSECONDS_PER_SECOND, seconds_from_nanoseconds
 from locnerf.ros2.types import message_class
 from locnerf.sim.events import depth_millimetres
 
@@ -29,21 +27,27 @@ DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
 
 
 # ---------------------------------------------------------------- time
-def time_message(stamp: float) -> object:
-    """Seconds -> builtin_interfaces/msg/Time (sec, nanosec)."""
-    sec = math.floor(stamp)
-    nanosec = min(round((stamp - sec) * 1e9), 999_999_999)
+# Stamps cross this boundary as whole nanoseconds, exactly (locnerf.messages.stamps): through float
+# seconds a stamp near 1.7e9 s would come back up to 119 ns off.
+def time_message(stamp_ns: int) -> object:
+    """Whole nanoseconds -> builtin_interfaces/msg/Time (sec, nanosec with 0 <= nanosec < 1e9), exactly."""
+    sec, nanosec = divmod(stamp_ns, NANOSECONDS_PER_SECOND)
     return message_class("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
 
 
+def nanoseconds(time: object) -> int:
+    """builtin_interfaces/msg/Time -> whole nanoseconds, exactly."""
+    return time.sec * NANOSECONDS_PER_SECOND + time.nanosec
+
+
 def seconds(time: object) -> float:
-    """builtin_interfaces/msg/Time -> seconds."""
-    return time.sec + time.nanosec * 1e-9
+    """builtin_interfaces/msg/Time -> float seconds (the nearest double: for arithmetic, not to carry the stamp)."""
+    return seconds_from_nanoseconds(nanoseconds(time))
 
 
-def header(stamp: float, frame_id: str) -> object:
-    """std_msgs/msg/Header."""
-    return message_class("std_msgs/msg/Header")(stamp=time_message(stamp), frame_id=frame_id)
+def header(stamp_ns: int, frame_id: str) -> object:
+    """std_msgs/msg/Header stamped ``stamp_ns`` whole nanoseconds."""
+    return message_class("std_msgs/msg/Header")(stamp=time_message(stamp_ns), frame_id=frame_id)
 
 
 # ---------------------------------------------------------------- poses
@@ -75,19 +79,6 @@ def pose_from_message(pose: object) -> torch.Tensor:
             "ros2_invalid", f"pose with position {t.tolist()} and quaternion (w, x, y, z) {q.tolist()}: expected finite values and a non-zero quaternion"
         )
     return make_pose(quaternion_to_matrix(q), t)
-
-
-def adjoint(pose: torch.Tensor) -> torch.Tensor:
-    """Adjoint (6, 6) of a pose (4, 4) for (rotation, translation) tangents: ``T Exp(δ) T⁻¹ = Exp(Ad_T δ)``.
-
-    ``Ad_T = [[R, 0], [t^ R, R]]``.
-    """
-    rotation, translation = pose[:3, :3].double(), pose[:3, 3].double()
-    out = torch.zeros(6, 6, dtype=torch.float64)
-    out[:3, :3] = rotation
-    out[3:, 3:] = rotation
-    out[3:, :3] = hat(translation) @ rotation
-    return out
 
 
 def _tangent_to_ros(rotation: torch.Tensor) -> torch.Tensor:

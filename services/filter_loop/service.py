@@ -25,6 +25,7 @@ from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.localizer import Localizer, MergeOutcome, SearchRegion
 from locnerf.filter.measurement import MeasurementConfig, observed_colours, sample_pixels_of_image
+from locnerf.geometry.se3 import adjoint, pose_inverse
 from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting, validate_poses
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, decode_rgbd, encode
@@ -42,6 +43,7 @@ from locnerf.messages.schemas import (
     UpdateResult,
     WarpRequest,
 )
+from locnerf.messages.stamps import nanoseconds_from_seconds
 from services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
 from services.filter_loop.frames import FilterFrames
 from services.filter_loop.image_hold import Frame, ImageHold
@@ -157,6 +159,7 @@ class FilterLoop:
         self.odometry_restarts = 0
         self.merge_failures = 0
         self._stepped_back: list[float] = []
+        self._odometry_stamp_ns: int | None = None
         self._image: Frame | None = None
         self.held_images = ImageHold(config.image_odometry_wait)
         self._warned_no_depth = False
@@ -222,6 +225,7 @@ class FilterLoop:
                 self.history.clear()
                 self.odometry_restarts += 1
             increment = self.history.append(message.stamp, pose)
+            self._odometry_stamp_ns = message.stamp_ns
             self._stepped_back.clear()
         except DecodeError as error:
             self.bad.record(error.kind, error.reason)
@@ -237,7 +241,15 @@ class FilterLoop:
         if not self.running:
             return []
         estimate = self.state_machine.carry(self.frames.map_increment(increment))
-        return [self._pose_message(message.stamp, estimate)]
+        return [self._pose_message(message, estimate)]
+
+    @property
+    def latest_stamp_ns(self) -> int:
+        """The newest odometry's stamp in whole nanoseconds, as it came (a resumed state's stamp is rounded;
+        0 before any): the stamp of the particle cloud, the status and their ROS 2 counterparts."""
+        if self._odometry_stamp_ns is not None:
+            return self._odometry_stamp_ns
+        return nanoseconds_from_seconds(self.history.latest_stamp or 0.0)
 
     def _odometry_clock_restarted(self, stamp: float) -> bool:
         """Whether ``stamp`` starts a new odometry session: it lies more than ``odometry_horizon``
@@ -260,12 +272,14 @@ class FilterLoop:
             return True
         return False
 
-    def _pose_message(self, stamp: float, estimate: ParticleEstimate) -> tuple[str, bytes]:
+    def _pose_message(self, odometry: Odometry, estimate: ParticleEstimate) -> tuple[str, bytes]:
+        """The pose at ``odometry``'s stamp (its exact nanoseconds too)."""
         metric = self.frames.metric_estimate(estimate)
-        self.persistence.offer(stamp, metric.pose, metric.covariance, self.history.latest_pose)
+        self.persistence.offer(odometry.stamp, metric.pose, metric.covariance, self.history.latest_pose)
         self.rates["pose"].tick()
         message = PoseEstimate(
-            stamp=stamp,
+            stamp=odometry.stamp,
+            stamp_ns=odometry.stamp_ns,
             T_world_cam=metric.pose.tolist(),
             covariance=metric.covariance.tolist(),
             particle_count=estimate.particle_count,
@@ -356,7 +370,7 @@ class FilterLoop:
         return []
 
     def handle_initial_pose(self, payload: bytes) -> Outgoing:
-        """Re-initialise around the commanded metric pose."""
+        """Re-initialise around the commanded metric pose, carried from its stamp to the newest odometry (:meth:`_carried_to_odometry`)."""
         try:
             command = decode(payload, InitialPoseCommand)
             pose = torch.tensor(command.T_world_cam, dtype=torch.float64)
@@ -368,8 +382,31 @@ class FilterLoop:
             self.bad.record("command_invalid", str(error))
             return []
         logger.info("initial pose command: re-initialising")
-        self._initialize_around(pose, torch.tensor(command.covariance, dtype=torch.float64))
+        self._initialize_around(*self._carried_to_odometry(command.stamp, pose, torch.tensor(command.covariance, dtype=torch.float64)))
         return []
+
+    def _carried_to_odometry(self, stamp: float, T_world_cam: torch.Tensor, covariance: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A metric pose (4, 4) with its (6, 6) covariance at ``stamp``, carried to the newest odometry stamp, as
+        amcl carries an initial pose from its stamp to now: ``T(now) = T(stamp) · O`` with the odometry
+        increment ``O = T_odom_cam(stamp)⁻¹ · T_odom_cam(now)``, and ``Σ(now) = Ad(O⁻¹) Σ Ad(O⁻¹)ᵀ`` (the
+        uncertainty moves with the pose; no prediction noise is added). A stamp outside the odometry
+        history (older than kept, or newer than the newest odometry) is used as is, logged; so is any
+        stamp before odometry has come."""
+        latest = self.history.latest_stamp
+        if latest is None:
+            return T_world_cam, covariance
+        if stamp > latest:
+            logger.info("initial pose stamped %.9f s, after the newest odometry (%.9f s): used as the pose at the newest odometry", stamp, latest)
+            return T_world_cam, covariance
+        try:
+            back = self.history.carry_to(stamp)  # T_now_stamp; None when stamp is the newest odometry's
+        except ValueError as error:
+            logger.warning("initial pose used as the pose at the newest odometry (%.9f s), not carried: %s", latest, error)
+            return T_world_cam, covariance
+        if back is None:
+            return T_world_cam, covariance
+        to_now = adjoint(back)  # Ad(O⁻¹), O = back⁻¹
+        return T_world_cam @ pose_inverse(back), to_now @ covariance @ to_now.T
 
     def handle_global_localization(self, payload: bytes) -> Outgoing:
         """Re-initialise over the whole map."""
@@ -478,7 +515,7 @@ class FilterLoop:
     def _particles_message(self) -> tuple[str, bytes]:
         poses = self.metric_particle_poses()
         message = ParticleCloud(
-            stamp=self.history.latest_stamp or 0.0, positions=poses[:, :3, 3].tolist(), weights=self.localizer.particles.weights.double().cpu().tolist()
+            stamp_ns=self.latest_stamp_ns, positions=poses[:, :3, 3].tolist(), weights=self.localizer.particles.weights.double().cpu().tolist()
         )
         return self._key(keys.PARTICLES), encode(message)
 
@@ -509,7 +546,7 @@ class FilterLoop:
     def status(self) -> FilterStatus:
         """The current health summary."""
         return FilterStatus(
-            stamp=self.history.latest_stamp or 0.0,
+            stamp_ns=self.latest_stamp_ns,
             state=FilterState.RUNNING if self.running else FilterState.WAITING_FOR_INITIALISATION,
             rates_hz={name: meter.rate() for name, meter in self.rates.items()},
             update_latency_s=sum(self.latencies) / len(self.latencies) if self.latencies else None,

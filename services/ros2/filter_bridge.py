@@ -1,6 +1,6 @@
 """The filter's ROS 2 face: ROS messages in (odometry, images, initial pose, the global
 localization service) translated to locnerf's messages, and locnerf's pose and particles out as
-nav2_amcl publishes them (``amcl_pose``, ``particle_cloud`` as nav2_msgs/ParticleCloud, ``map → odom`` on ``/tf``).
+nav2_amcl publishes them (``amcl_pose``, ``particle_cloud``, ``map → odom`` on ``/tf``).
 
 Frames (REP 103/105; docs/ROS2.md draws them): ``map`` is locnerf's metric world frame, ``odom``
 the VIO's frame, ``base_link`` the body, and the camera is ``T_body_cam`` from the body (OpenGL
@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import torch
 
-from locnerf.geometry.se3 import pose_inverse
+from locnerf.geometry.se3 import adjoint, pose_inverse
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, encode
 from locnerf.messages.schemas import (
@@ -31,10 +31,11 @@ from locnerf.messages.schemas import (
     InitialPoseCommand,
     PoseEstimate,
 )
+from locnerf.messages.stamps import nanoseconds_from_seconds
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import check_key
-from locnerf.ros2.types import EMPTY_SERVICE, NAV2_PARTICLE, NAV2_PARTICLE_CLOUD, message_class, serialize
+from locnerf.ros2.types import EMPTY_SERVICE, message_class, serialize
 from services.filter_loop.service import FilterLoop
 from services.ros2.config import Ros2Config
 from services.ros2.node import Ros2Node
@@ -67,8 +68,7 @@ class FilterRos2Bridge:
         self.T_body_cam = loop.frames.T_body_cam
         self.T_cam_body = pose_inverse(loop.frames.T_body_cam)
         self.pose_publisher = self.node.publisher(config.pose_topic, POSE_WITH_COVARIANCE)
-        self.particles_publisher = self.node.publisher(config.particles_topic, NAV2_PARTICLE_CLOUD)
-        self.legacy_particles_publisher = self.node.publisher(config.legacy_particles_topic, POSE_ARRAY) if config.legacy_particles_topic else None
+        self.particles_publisher = self.node.publisher(config.particles_topic, POSE_ARRAY)
         self.tf_publisher = self.node.publisher(config.tf_topic, TF_MESSAGE) if config.publish_tf else None
         self.sensors = Ros2Sensors(self.node, config, clock)
         self.odometry, self.camera_info = self.sensors.odometry, self.sensors.camera_info
@@ -115,12 +115,14 @@ class FilterRos2Bridge:
             raise DecodeError("ros2_frame", f"initial pose in frame {message.header.frame_id!r}, expected {self.config.global_frame_id!r}")
         T_map_base = convert.pose_from_message(message.pose.pose)
         covariance_body = convert.covariance_from_ros(message.pose.covariance, T_map_base)
-        to_camera = convert.adjoint(self.T_cam_body)  # δ_cam = Ad(T_body_cam⁻¹) δ_body
+        to_camera = adjoint(self.T_cam_body)  # δ_cam = Ad(T_body_cam⁻¹) δ_body
         covariance = to_camera @ covariance_body @ to_camera.T
         T_map_cam = T_map_base @ self.T_body_cam
         try:
             command = InitialPoseCommand(
-                stamp=convert.seconds(message.header.stamp), T_world_cam=T_map_cam.tolist(), covariance=(0.5 * (covariance + covariance.T)).tolist()
+                stamp_ns=convert.nanoseconds(message.header.stamp),
+                T_world_cam=T_map_cam.tolist(),
+                covariance=(0.5 * (covariance + covariance.T)).tolist(),
             )
         except ValueError as error:
             raise DecodeError("ros2_invalid", f"initial pose: {error}") from None
@@ -129,7 +131,7 @@ class FilterRos2Bridge:
     def global_localization(self, key: str, _received: Received) -> bytes:
         """The service was called (on its key with the right type hash): a locnerf GlobalLocalizationCommand."""
         check_key(key, self.config.domain_id, self.names["global_localization"], EMPTY_SERVICE)
-        return encode(GlobalLocalizationCommand(stamp=self.loop.history.latest_stamp or 0.0))
+        return encode(GlobalLocalizationCommand(stamp_ns=self.loop.latest_stamp_ns))
 
     # ------------------------------------------------------------------ out (filter thread)
     def publish_outputs(self, outgoing: list[tuple[str, bytes]]) -> None:
@@ -144,12 +146,12 @@ class FilterRos2Bridge:
     def _publish_pose(self, estimate: PoseEstimate) -> None:
         T_map_cam = torch.tensor(estimate.T_world_cam, dtype=torch.float64)
         T_map_base = T_map_cam @ self.T_cam_body
-        to_body = convert.adjoint(self.T_body_cam)  # δ_body = Ad(T_body_cam) δ_cam
+        to_body = adjoint(self.T_body_cam)  # δ_body = Ad(T_body_cam) δ_cam
         covariance = to_body @ torch.tensor(estimate.covariance, dtype=torch.float64) @ to_body.T
         pose_type = message_class("geometry_msgs/msg/PoseWithCovariance")
         self.pose_publisher.publish(
             message_class(POSE_WITH_COVARIANCE)(
-                header=convert.header(estimate.stamp, self.config.global_frame_id),
+                header=convert.header(estimate.stamp_ns, self.config.global_frame_id),
                 pose=pose_type(pose=convert.pose_message(T_map_base), covariance=convert.covariance_to_ros(covariance, T_map_base)),
             )
         )
@@ -159,19 +161,17 @@ class FilterRos2Bridge:
         T_odom_base = T_odom_cam @ self.T_cam_body
         T_map_odom = T_map_base @ pose_inverse(T_odom_base)
         transform = message_class("geometry_msgs/msg/TransformStamped")(
-            header=convert.header(estimate.stamp + self.config.transform_tolerance, self.config.global_frame_id),
+            header=convert.header(estimate.stamp_ns + nanoseconds_from_seconds(self.config.transform_tolerance), self.config.global_frame_id),
             child_frame_id=self.config.odom_frame_id,
             transform=convert.transform_message(T_map_odom),
         )
         self.tf_publisher.publish(message_class(TF_MESSAGE)(transforms=[transform]))
 
     def _publish_particles(self) -> None:
-        """The particles' body poses and normalised weights as nav2_msgs/ParticleCloud (and as a PoseArray on legacy_particles_topic)."""
-        poses = [convert.pose_message(pose) for pose in self.loop.metric_particle_poses() @ self.T_cam_body]
-        weights = self.loop.localizer.particles.weights.double().cpu().tolist()
-        header = convert.header(self.loop.history.latest_stamp or 0.0, self.config.global_frame_id)
-        particle = message_class(NAV2_PARTICLE)
-        particles = [particle(pose=pose, weight=weight) for pose, weight in zip(poses, weights, strict=True)]
-        self.particles_publisher.publish(message_class(NAV2_PARTICLE_CLOUD)(header=header, particles=particles))
-        if self.legacy_particles_publisher is not None:
-            self.legacy_particles_publisher.publish(message_class(POSE_ARRAY)(header=header, poses=poses))
+        poses = self.loop.metric_particle_poses() @ self.T_cam_body
+        self.particles_publisher.publish(
+            message_class(POSE_ARRAY)(
+                header=convert.header(self.loop.latest_stamp_ns, self.config.global_frame_id),
+                poses=[convert.pose_message(pose) for pose in poses],
+            )
+        )

@@ -172,7 +172,7 @@ class Ros2Sensors:
                 "ros2_frame", f"odometry of {frames[1]!r} in {frames[0]!r}, expected {self.config.base_frame_id!r} in {self.config.odom_frame_id!r}"
             )
         pose = convert.pose_from_message(message.pose.pose)
-        return encode(Odometry(stamp=convert.seconds(message.header.stamp), frame_id=self.config.odom_frame_id, T_odom_body=pose.tolist()))
+        return encode(Odometry(stamp_ns=convert.nanoseconds(message.header.stamp), frame_id=self.config.odom_frame_id, T_odom_body=pose.tolist()))
 
     def camera_info(self, key: str, received: Received) -> None:
         """Keep the camera (intrinsics, undistortion) for the following images (nothing to hand on).
@@ -245,7 +245,7 @@ class Ros2Sensors:
         if pixels.shape[:2] != (intrinsics.height, intrinsics.width):
             raise DecodeError("ros2_image_size", f"image {pixels.shape[1]}×{pixels.shape[0]}, camera info {intrinsics.width}×{intrinsics.height}")
         header = ImageHeader(
-            stamp=convert.seconds(message.header.stamp),
+            stamp_ns=convert.nanoseconds(message.header.stamp),
             frame_id=message.header.frame_id,
             encoding="rgb8",
             width=intrinsics.width,

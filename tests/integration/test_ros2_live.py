@@ -18,6 +18,7 @@ import torch
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import make_pose
 from locnerf.geometry.so3 import so3_exp
+from locnerf.messages.stamps import nanoseconds_from_seconds
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import EntityKind, data_key, fully_qualified_name
@@ -93,7 +94,7 @@ class RosObserver:
         with self.lock:
             poses = self.received["amcl_pose"][-count:]
         for message in poses:
-            truth = self.truth.get(nanoseconds(message.header.stamp))
+            truth = self.truth.get(convert.nanoseconds(message.header.stamp))
             if truth is not None:
                 estimate = convert.pose_from_message(message.pose.pose)
                 out.append((float(translation_error(estimate, truth)), float(rotation_error_deg(estimate, truth))))
@@ -102,10 +103,6 @@ class RosObserver:
     def tracking(self) -> bool:
         window = self.errors(15)
         return len(window) == 15 and all(t < TRACKED_TRANSLATION and r < TRACKED_ROTATION_DEG for t, r in window)
-
-
-def nanoseconds(time) -> int:
-    return time.sec * 1_000_000_000 + time.nanosec
 
 
 class RosSensors:
@@ -127,9 +124,9 @@ class RosSensors:
         for event in Pacer(1.0).paced(events, self.stop.is_set):
             stamp = EPOCH + event.stamp
             if isinstance(event, GroundTruthEvent):
-                self.observer.truth[nanoseconds(convert.time_message(stamp))] = event.T_world_cam
+                self.observer.truth[nanoseconds_from_seconds(stamp)] = event.T_world_cam
             elif isinstance(event, OdometryEvent):
-                self.observer.odometry[nanoseconds(convert.time_message(stamp))] = event.T_odom_body
+                self.observer.odometry[nanoseconds_from_seconds(stamp)] = event.T_odom_body
                 self.odom.publish(messages.odometry(stamp, event.T_odom_body))
             elif isinstance(event, ImageEvent):
                 self.info.publish(messages.camera_info(stamp, event.intrinsics))
@@ -182,15 +179,15 @@ def test_ros2_topics_in_and_out_converge_count_bad_input_and_serve_the_service(h
         # /tf: map -> odom composes with the odometry of the same stamp into amcl_pose; it is stamped
         # transform_tolerance (1 s) after that stamp, as nav2_amcl future-dates it.
         with ros.lock:
-            transforms = {nanoseconds(m.transforms[0].header.stamp) - 1_000_000_000: m.transforms[0] for m in ros.received["tf"]}
-            pose = next(m for m in reversed(ros.received["amcl_pose"]) if nanoseconds(m.header.stamp) in transforms)
-            tf, cloud = transforms[nanoseconds(pose.header.stamp)], ros.received["particle_cloud"]
+            transforms = {convert.nanoseconds(m.transforms[0].header.stamp) - 1_000_000_000: m.transforms[0] for m in ros.received["tf"]}
+            pose = next(m for m in reversed(ros.received["amcl_pose"]) if convert.nanoseconds(m.header.stamp) in transforms)
+            tf, cloud = transforms[convert.nanoseconds(pose.header.stamp)], ros.received["particle_cloud"]
         assert (tf.header.frame_id, tf.child_frame_id) == ("map", "odom") and cloud and len(cloud[-1].particles) > 0
         rotation, translation = tf.transform.rotation, tf.transform.translation
         as_pose = message_class("geometry_msgs/msg/Pose")(
             position=message_class("geometry_msgs/msg/Point")(translation.x, translation.y, translation.z), orientation=rotation
         )
-        T_odom_base = ros.odometry[nanoseconds(pose.header.stamp)]
+        T_odom_base = ros.odometry[convert.nanoseconds(pose.header.stamp)]
         assert torch.allclose(convert.pose_from_message(as_pose) @ T_odom_base, convert.pose_from_message(pose.pose.pose), atol=1e-6)
 
         # Bad input on the ROS topics: counted in FilterStatus, dropped, the filter keeps going.

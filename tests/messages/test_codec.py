@@ -218,3 +218,14 @@ def test_a_depth_camera_offset_travels_with_the_depth_header_and_must_be_rigid()
         schemas.DepthHeader(width=2, height=2, intrinsics=DEPTH_INTRINSICS, T_cam_depth=sheared)
     with pytest.raises(ValueError, match="T_cam_depth: expected a 4×4 matrix"):
         schemas.DepthHeader(width=2, height=2, intrinsics=DEPTH_INTRINSICS, T_cam_depth=offset[:3])
+
+
+def test_stamps_carry_whole_nanoseconds_exactly_and_must_agree_with_the_seconds():
+    exact = 1_700_000_000_123_456_789  # float seconds hold 1_700_000_000.1234567165...: 72 ns off
+    odometry = codec.decode(codec.encode(schemas.Odometry(stamp_ns=exact, T_odom_body=EYE)), schemas.Odometry)
+    assert odometry.stamp_ns == exact and odometry.stamp == 1_700_000_000.1234567
+    assert schemas.Odometry(stamp=0.1, T_odom_body=EYE).stamp_ns == 100_000_000, "the nanoseconds of a float stamp are derived"
+    for body in ({"stamp": 1.0, "stamp_ns": 1_000_002_000}, {"stamp_ns": 10**19}, {"stamp_ns": 1.5}):
+        with pytest.raises(codec.DecodeError) as error:
+            codec.decode(_envelope(body | {"T_odom_body": EYE}), schemas.Odometry)
+        assert error.value.kind == "invalid", body

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from locnerf.messages.stamps import nanoseconds_from_seconds
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2 import convert
 from locnerf.ros2.types import message_class
@@ -16,7 +17,7 @@ def odometry(stamp: float, T_odom_base: torch.Tensor, odom_frame: str = "odom", 
     vector = message_class("geometry_msgs/msg/Vector3")
     twist = message_class("geometry_msgs/msg/Twist")(linear=vector(0.0, 0.0, 0.0), angular=vector(0.0, 0.0, 0.0))
     return message_class("nav_msgs/msg/Odometry")(
-        header=convert.header(stamp, odom_frame),
+        header=convert.header(nanoseconds_from_seconds(stamp), odom_frame),
         child_frame_id=base_frame,
         pose=pose,
         twist=message_class("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=np.zeros(36)),
@@ -37,7 +38,7 @@ def _image_message(stamp: float, frame: str, encoding: str, values: np.ndarray) 
     """sensor_msgs/Image of the contiguous little-endian ``values`` (H, W) or (H, W, C), rows unpadded."""
     height, width = values.shape[:2]
     return message_class("sensor_msgs/msg/Image")(
-        header=convert.header(stamp, frame),
+        header=convert.header(nanoseconds_from_seconds(stamp), frame),
         height=height,
         width=width,
         encoding=encoding,
@@ -53,7 +54,7 @@ def camera_info(stamp: float, intrinsics: PinholeIntrinsics, frame: str = "camer
     p = np.array([intrinsics.fx, 0.0, intrinsics.cx, 0.0, 0.0, intrinsics.fy, intrinsics.cy, 0.0, 0.0, 0.0, 1.0, 0.0])
     roi = message_class("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return message_class("sensor_msgs/msg/CameraInfo")(
-        header=convert.header(stamp, frame),
+        header=convert.header(nanoseconds_from_seconds(stamp), frame),
         height=intrinsics.height,
         width=intrinsics.width,
         distortion_model="plumb_bob",
@@ -70,4 +71,4 @@ def camera_info(stamp: float, intrinsics: PinholeIntrinsics, frame: str = "camer
 def initial_pose(stamp: float, T_map_base: torch.Tensor, covariance_ros: list[float], frame: str = "map") -> object:
     """geometry_msgs/PoseWithCovarianceStamped, as RViz's 2D Pose Estimate sends it."""
     pose = message_class("geometry_msgs/msg/PoseWithCovariance")(pose=convert.pose_message(T_map_base), covariance=np.asarray(covariance_ros, dtype=np.float64))
-    return message_class("geometry_msgs/msg/PoseWithCovarianceStamped")(header=convert.header(stamp, frame), pose=pose)
+    return message_class("geometry_msgs/msg/PoseWithCovarianceStamped")(header=convert.header(nanoseconds_from_seconds(stamp), frame), pose=pose)

@@ -512,3 +512,26 @@ def test_the_published_effective_sample_size_is_the_updates_before_resampling(wo
     harness.collect(harness.loop.handle_odometry(odometry_payload(0.0, torch.eye(4, dtype=torch.float64))))
     published = harness.poses[-1]
     assert published.effective_sample_size < 0.5 * published.particle_count  # a global start weighed by one image is far from uniform
+
+
+def _turning(stamp: float) -> torch.Tensor:
+    """Odometry pose (4, 4) float64 at ``stamp`` of a camera moving 0.5 m/s along its x and turning 0.6 rad/s about its y."""
+    return make_pose(se3_exp(torch.tensor([0.0, 0.6 * stamp, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64))[:3, :3], torch.tensor([0.5 * stamp, 0.0, 0.0]).double())
+
+
+def test_an_initial_pose_is_carried_from_its_stamp_to_the_newest_odometry(world, generator, caplog):
+    commanded = world.sample_camera_pose(generator)
+    tiny = 1e-10 * torch.eye(6, dtype=torch.float64)
+    for stamp, carried in ((0.1, True), (-3.0, False), (0.25, False)):  # inside the history, older than it, after it
+        harness = Harness(world, FilterLoopConfig(start="wait"))
+        for odometry in (0.0, 0.1, 0.2):
+            harness.collect(harness.loop.handle_odometry(odometry_payload(odometry, _turning(odometry))))
+        caplog.clear()
+        with caplog.at_level("INFO"):
+            harness.loop.handle_initial_pose(encode(InitialPoseCommand(stamp=stamp, T_world_cam=commanded.tolist(), covariance=tiny.tolist())))
+        harness.collect(harness.loop.handle_odometry(odometry_payload(0.3, _turning(0.3))))
+        at_command = _turning(stamp) if carried else _turning(0.2)  # not carried: the pose is taken as the newest odometry's
+        expected = commanded @ pose_inverse(at_command) @ _turning(0.3)
+        published = torch.tensor(harness.poses[-1].T_world_cam, dtype=torch.float64)
+        torch.testing.assert_close(published, expected, atol=1e-4, rtol=0.0)
+        assert carried or any("used as the pose at the newest odometry" in record.message for record in caplog.records)

@@ -52,12 +52,11 @@ def setup():
     config = FilterLoopConfig(start="wait", T_body_cam=T_BODY_CAM.tolist())
     loop = FilterLoop(ROBOT, localizer, world.normalization, region, config, lambda: 0.0, world.checksum)
     bus = MemoryBus()
-    received: dict[str, list] = {"pose": [], "cloud": [], "legacy": [], "tf": [], "locnerf": []}
+    received: dict[str, list] = {"pose": [], "cloud": [], "tf": [], "locnerf": []}
     bus.subscribe(keys.key(ROBOT, keys.POSE), lambda _k, payload: received["locnerf"].append(payload))
     types = {
         "pose": ("amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped"),
-        "cloud": ("particle_cloud", "nav2_msgs/msg/ParticleCloud"),
-        "legacy": ("particlecloud", "geometry_msgs/msg/PoseArray"),
+        "cloud": ("particle_cloud", "geometry_msgs/msg/PoseArray"),
         "tf": ("tf", "tf2_msgs/msg/TFMessage"),
     }
     for name, (topic, ros_type) in types.items():
@@ -65,7 +64,7 @@ def setup():
             data_key(0, "/" + topic, ros_type),
             lambda _k, payload, att, name=name, ros_type=ros_type: received[name].append((deserialize(payload, ros_type), Attachment.decode(att))),
         )
-    driver = FilterDriver(loop, bus, clock=lambda: 0.0, ros2=FilterRos2Bridge(loop, bus, Ros2Config(enabled=True, legacy_particles_topic="particlecloud")))
+    driver = FilterDriver(loop, bus, clock=lambda: 0.0, ros2=FilterRos2Bridge(loop, bus, Ros2Config(enabled=True)))
     driver.subscribe()
     vio = Ros2Node(bus, 0, "vio")
     publishers = {
@@ -109,18 +108,13 @@ def test_initial_pose_odometry_and_outputs_follow_the_amcl_frames():
     T_map_odom = convert.pose_from_message(rosless)
     assert torch.allclose(T_map_odom @ T_odom_base, published, atol=1e-9), "T_map_odom = T_map_base · T_odom_base⁻¹"
     assert len(message.pose.covariance) == 36
-    # The particle cloud (nav2_msgs/ParticleCloud): one base pose and its weight per particle, all near
-    # the initial pose (the llff prediction noise has σ = 0.01 m per step: 0.1 m is 10 σ); the same
-    # poses as a PoseArray on the legacy topic.
+    # The particle cloud: one base pose per particle, all near the initial pose (the llff prediction
+    # noise has σ = 0.01 m per step: 0.1 m is 10 σ).
     loop._last_particles = -math.inf
     drain(driver, 2)
     cloud = received["cloud"][-1][0]
-    assert len(cloud.particles) == loop.localizer.particles.poses.shape[0] and cloud.header.frame_id == "map"
-    assert max(abs(p.pose.position.x - T_map_base[0, 3].item()) for p in cloud.particles) < 0.1
-    weights = [p.weight for p in cloud.particles]
-    assert weights == pytest.approx(loop.localizer.particles.weights.tolist()) and sum(weights) == pytest.approx(1.0)
-    legacy = received["legacy"][-1][0]
-    assert [p.position.x for p in legacy.poses] == [p.pose.position.x for p in cloud.particles] and legacy.header == cloud.header
+    assert len(cloud.poses) == loop.localizer.particles.poses.shape[0]
+    assert max(abs(p.position.x - T_map_base[0, 3].item()) for p in cloud.poses) < 0.1
 
 
 def test_the_service_reinitialises_and_replies_with_the_request_sequence_and_gid():
@@ -182,3 +176,29 @@ def test_t_body_cam_must_be_a_rigid_transform():
         FilterLoopConfig(T_body_cam=(2 * torch.eye(4, dtype=torch.float64)).tolist())
     with pytest.raises(ValueError, match="4×4"):
         FilterLoopConfig(T_body_cam=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_a_ros_stamp_comes_back_in_amcl_pose_tf_and_the_particle_cloud_to_the_nanosecond():
+    world, loop, _, driver, publishers, received = setup()
+    exact = 1_700_000_000_123_456_789  # through float seconds it would come back as ...123_456_717
+    initial = messages.initial_pose(0.0, torch.eye(4, dtype=torch.float64), (1e-4 * np.eye(6)).reshape(-1).tolist())
+    initial.header.stamp = convert.time_message(exact)
+    publishers["initialpose"].publish(initial)
+    drain(driver)
+    intrinsics = world.default_intrinsics
+    sensors = [messages.odometry(0.0, torch.eye(4, dtype=torch.float64)), messages.camera_info(0.0, intrinsics)]
+    sensors.append(messages.image(0.0, np.zeros((intrinsics.height, intrinsics.width, 3), np.uint8)))
+    for message in sensors:
+        message.header.stamp = convert.time_message(exact)
+    for name, message in zip(("odom", "info", "image"), sensors, strict=True):
+        publishers[name].publish(message)
+        drain(driver)  # the camera info before the image
+    loop._last_particles = -math.inf
+    drain(driver)
+    assert loop.running and loop.bad.total == 0
+    pose_stamp = received["pose"][-1][0].header.stamp
+    assert (pose_stamp.sec, pose_stamp.nanosec) == (1_700_000_000, 123_456_789)
+    assert convert.nanoseconds(received["tf"][-1][0].transforms[0].header.stamp) == exact + 1_000_000_000  # transform_tolerance 1 s
+    assert convert.nanoseconds(received["cloud"][-1][0].header.stamp) == exact
+    assert decode(received["locnerf"][-1], PoseEstimate).stamp_ns == exact
+    assert loop._image[0].stamp_ns == exact, "the image's stamp reaches the filter exactly"
