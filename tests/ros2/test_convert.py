@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 import torch
 
-from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
+from locnerf.geometry.se3 import adjoint, make_pose, pose_inverse, se3_exp
 from locnerf.geometry.so3 import so3_exp
 from locnerf.messages.codec import DecodeError
 from locnerf.ros2.convert import (
-    adjoint,
     covariance_from_ros,
     covariance_to_ros,
     millimetres_from_depth_image,
+    nanoseconds,
     pixels_from_compressed,
     pixels_from_image,
     pose_from_message,
@@ -34,7 +34,10 @@ def test_pose_and_time_round_trip():
     assert torch.allclose(pose_from_message(pose_message(YAW_90)), YAW_90, atol=1e-12)
     message = pose_message(YAW_90)
     assert (message.orientation.z, message.orientation.w) == pytest.approx((math.sqrt(0.5), math.sqrt(0.5)))
-    assert seconds(time_message(12.25)) == 12.25 and time_message(-0.5).sec == -1
+    assert seconds(time_message(12_250_000_000)) == 12.25 and (time_message(-500_000_000).sec, time_message(-500_000_000).nanosec) == (-1, 500_000_000)
+    # Whole nanoseconds cross exactly; float seconds near 1.7e9 s would move this stamp by 72 ns.
+    stamp = time_message(1_700_000_000_123_456_789)
+    assert (stamp.sec, stamp.nanosec) == (1_700_000_000, 123_456_789) and nanoseconds(stamp) == 1_700_000_000_123_456_789
     message.orientation.w = message.orientation.z = 0.0
     with pytest.raises(DecodeError, match="non-zero quaternion"):
         pose_from_message(message)
@@ -84,7 +87,7 @@ def _image(encoding: str, pixels: np.ndarray, pad: int = 0) -> object:
     height, width = pixels.shape[:2]
     rows = pixels.reshape(height, -1)
     padded = np.concatenate((rows, np.zeros((height, pad), np.uint8)), axis=1)
-    header = message_class("std_msgs/msg/Header")(stamp=time_message(0.0), frame_id="camera")
+    header = message_class("std_msgs/msg/Header")(stamp=time_message(0), frame_id="camera")
     return message_class("sensor_msgs/msg/Image")(
         header=header, height=height, width=width, encoding=encoding, is_bigendian=0, step=padded.shape[1], data=padded.reshape(-1)
     )
@@ -110,7 +113,7 @@ def test_compressed_png_is_decoded_to_rgb_and_unknown_formats_raise():
     rgb = np.random.default_rng(1).integers(0, 256, (6, 7, 3), dtype=np.uint8)
     ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     compressed = message_class("sensor_msgs/msg/CompressedImage")(
-        header=message_class("std_msgs/msg/Header")(stamp=time_message(0.0), frame_id="camera"), format="rgb8; png compressed bgr8", data=png.reshape(-1)
+        header=message_class("std_msgs/msg/Header")(stamp=time_message(0), frame_id="camera"), format="rgb8; png compressed bgr8", data=png.reshape(-1)
     )
     assert ok and np.array_equal(pixels_from_compressed(compressed), rgb)
     compressed.format = "theora"
