@@ -1,6 +1,6 @@
 """The filter's ROS 2 face: ROS messages in (odometry, images, initial pose, the global
 localization service) translated to locnerf's messages, and locnerf's pose and particles out as
-nav2_amcl publishes them (``amcl_pose``, ``particle_cloud``, ``map → odom`` on ``/tf``).
+nav2_amcl publishes them (``amcl_pose``, ``particle_cloud`` as nav2_msgs/ParticleCloud, ``map → odom`` on ``/tf``).
 
 Frames (REP 103/105; docs/ROS2.md draws them): ``map`` is locnerf's metric world frame, ``odom``
 the VIO's frame, ``base_link`` the body, and the camera is ``T_body_cam`` from the body (OpenGL
@@ -35,7 +35,7 @@ from locnerf.messages.stamps import nanoseconds_from_seconds
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import check_key
-from locnerf.ros2.types import EMPTY_SERVICE, message_class, serialize
+from locnerf.ros2.types import EMPTY_SERVICE, NAV2_PARTICLE, NAV2_PARTICLE_CLOUD, message_class, serialize
 from services.filter_loop.service import FilterLoop
 from services.ros2.config import Ros2Config
 from services.ros2.node import Ros2Node
@@ -68,7 +68,8 @@ class FilterRos2Bridge:
         self.T_body_cam = loop.frames.T_body_cam
         self.T_cam_body = pose_inverse(loop.frames.T_body_cam)
         self.pose_publisher = self.node.publisher(config.pose_topic, POSE_WITH_COVARIANCE)
-        self.particles_publisher = self.node.publisher(config.particles_topic, POSE_ARRAY)
+        self.particles_publisher = self.node.publisher(config.particles_topic, NAV2_PARTICLE_CLOUD)
+        self.legacy_particles_publisher = self.node.publisher(config.legacy_particles_topic, POSE_ARRAY) if config.legacy_particles_topic else None
         self.tf_publisher = self.node.publisher(config.tf_topic, TF_MESSAGE) if config.publish_tf else None
         self.sensors = Ros2Sensors(self.node, config, clock)
         self.odometry, self.camera_info = self.sensors.odometry, self.sensors.camera_info
@@ -168,10 +169,12 @@ class FilterRos2Bridge:
         self.tf_publisher.publish(message_class(TF_MESSAGE)(transforms=[transform]))
 
     def _publish_particles(self) -> None:
-        poses = self.loop.metric_particle_poses() @ self.T_cam_body
-        self.particles_publisher.publish(
-            message_class(POSE_ARRAY)(
-                header=convert.header(self.loop.latest_stamp_ns, self.config.global_frame_id),
-                poses=[convert.pose_message(pose) for pose in poses],
-            )
-        )
+        """The particles' body poses and normalised weights as nav2_msgs/ParticleCloud (and as a PoseArray on legacy_particles_topic)."""
+        poses = [convert.pose_message(pose) for pose in self.loop.metric_particle_poses() @ self.T_cam_body]
+        weights = self.loop.localizer.particles.weights.double().cpu().tolist()
+        header = convert.header(self.loop.latest_stamp_ns, self.config.global_frame_id)
+        particle = message_class(NAV2_PARTICLE)
+        particles = [particle(pose=pose, weight=weight) for pose, weight in zip(poses, weights, strict=True)]
+        self.particles_publisher.publish(message_class(NAV2_PARTICLE_CLOUD)(header=header, particles=particles))
+        if self.legacy_particles_publisher is not None:
+            self.legacy_particles_publisher.publish(message_class(POSE_ARRAY)(header=header, poses=poses))

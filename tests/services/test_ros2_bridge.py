@@ -52,11 +52,12 @@ def setup():
     config = FilterLoopConfig(start="wait", T_body_cam=T_BODY_CAM.tolist())
     loop = FilterLoop(ROBOT, localizer, world.normalization, region, config, lambda: 0.0, world.checksum)
     bus = MemoryBus()
-    received: dict[str, list] = {"pose": [], "cloud": [], "tf": [], "locnerf": []}
+    received: dict[str, list] = {"pose": [], "cloud": [], "legacy": [], "tf": [], "locnerf": []}
     bus.subscribe(keys.key(ROBOT, keys.POSE), lambda _k, payload: received["locnerf"].append(payload))
     types = {
         "pose": ("amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped"),
-        "cloud": ("particle_cloud", "geometry_msgs/msg/PoseArray"),
+        "cloud": ("particle_cloud", "nav2_msgs/msg/ParticleCloud"),
+        "legacy": ("particlecloud", "geometry_msgs/msg/PoseArray"),
         "tf": ("tf", "tf2_msgs/msg/TFMessage"),
     }
     for name, (topic, ros_type) in types.items():
@@ -64,7 +65,7 @@ def setup():
             data_key(0, "/" + topic, ros_type),
             lambda _k, payload, att, name=name, ros_type=ros_type: received[name].append((deserialize(payload, ros_type), Attachment.decode(att))),
         )
-    driver = FilterDriver(loop, bus, clock=lambda: 0.0, ros2=FilterRos2Bridge(loop, bus, Ros2Config(enabled=True)))
+    driver = FilterDriver(loop, bus, clock=lambda: 0.0, ros2=FilterRos2Bridge(loop, bus, Ros2Config(enabled=True, legacy_particles_topic="particlecloud")))
     driver.subscribe()
     vio = Ros2Node(bus, 0, "vio")
     publishers = {
@@ -108,13 +109,18 @@ def test_initial_pose_odometry_and_outputs_follow_the_amcl_frames():
     T_map_odom = convert.pose_from_message(rosless)
     assert torch.allclose(T_map_odom @ T_odom_base, published, atol=1e-9), "T_map_odom = T_map_base · T_odom_base⁻¹"
     assert len(message.pose.covariance) == 36
-    # The particle cloud: one base pose per particle, all near the initial pose (the llff prediction
-    # noise has σ = 0.01 m per step: 0.1 m is 10 σ).
+    # The particle cloud (nav2_msgs/ParticleCloud): one base pose and its weight per particle, all near
+    # the initial pose (the llff prediction noise has σ = 0.01 m per step: 0.1 m is 10 σ); the same
+    # poses as a PoseArray on the legacy topic.
     loop._last_particles = -math.inf
     drain(driver, 2)
     cloud = received["cloud"][-1][0]
-    assert len(cloud.poses) == loop.localizer.particles.poses.shape[0]
-    assert max(abs(p.position.x - T_map_base[0, 3].item()) for p in cloud.poses) < 0.1
+    assert len(cloud.particles) == loop.localizer.particles.poses.shape[0] and cloud.header.frame_id == "map"
+    assert max(abs(p.pose.position.x - T_map_base[0, 3].item()) for p in cloud.particles) < 0.1
+    weights = [p.weight for p in cloud.particles]
+    assert weights == pytest.approx(loop.localizer.particles.weights.tolist()) and sum(weights) == pytest.approx(1.0)
+    legacy = received["legacy"][-1][0]
+    assert [p.position.x for p in legacy.poses] == [p.pose.position.x for p in cloud.particles] and legacy.header == cloud.header
 
 
 def test_the_service_reinitialises_and_replies_with_the_request_sequence_and_gid():
