@@ -102,12 +102,18 @@ def _distortion(info: object) -> np.ndarray:
 
 def _binned(matrix: np.ndarray, x_offset: int, y_offset: int, binning: tuple[int, int]) -> np.ndarray:
     """A 3×3 camera matrix of the sensor -> that of the published image: principal point shifted by
-    the region's offset, rows 0 and 1 divided by the binning (image_geometry's K_binned, P_binned)."""
+    the region's offset, rows 0 and 1 divided by the binning (image_geometry's K_binned, P_binned).
+
+    Pixel centres sit at integer coordinates (:class:`PinholeIntrinsics`): binned pixel u' covers sensor
+    pixels b·u' … b·u' + b − 1, centred at b·u' + (b − 1)/2, so c' = (c − offset + 0.5)/b − 0.5 (image_geometry's
+    c/b holds for the corner convention only)."""
     out = matrix.copy()
-    out[0, 2] -= x_offset
-    out[1, 2] -= y_offset
+    out[0, 2] -= x_offset - 0.5
+    out[1, 2] -= y_offset - 0.5
     out[0] /= binning[0]
     out[1] /= binning[1]
+    out[0, 2] -= 0.5
+    out[1, 2] -= 0.5
     return out
 
 

@@ -130,23 +130,26 @@ def test_a_raw_image_with_a_rectifying_rotation_is_refused_and_zero_r_or_p_are_u
 
 
 def test_binning_and_a_region_of_interest_scale_and_shift_the_intrinsics():
-    """By hand, as image_geometry's K_binned: fx / b, (cx - x_offset) / b, the image roi.width / b wide."""
+    """By hand: fx / b, (cx - x_offset + 0.5) / b - 0.5 (pixel centres at integers; image_geometry's (cx - x_offset) / b
+    is the corner convention's), the image roi.width / b wide."""
     info = camera_info(PLUMB_BOB, p=P_RECTIFIED)
     info.binning_x = info.binning_y = 2
     camera = rectification_from_camera_info(info)
-    assert camera.intrinsics == PinholeIntrinsics(fx=25.0, fy=25.5, cx=19.0, cy=14.5, width=40, height=30)
+    assert camera.intrinsics == PinholeIntrinsics(fx=25.0, fy=25.5, cx=18.75, cy=14.25, width=40, height=30)
     assert camera.map_x.shape == (30, 40)
-    pixels, rays = rectified_pixels(P_RECTIFIED / np.array([[2.0], [2.0], [1.0]]))
+    binned_p = P_RECTIFIED / np.array([[2.0], [2.0], [1.0]])
+    binned_p[:2, 2] -= 0.25  # (c + 0.5) / 2 - 0.5
+    pixels, rays = rectified_pixels(binned_p)
     inside = (pixels[:, 0] < 40) & (pixels[:, 1] < 30)
     pixels, rays = pixels[inside], rays[inside]
     raw, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), RAW.matrix().numpy(), PLUMB_BOB)
     u, v = pixels[:, 0].astype(int), pixels[:, 1].astype(int)
     binned = np.stack(((camera.map_x[v, u]), camera.map_y[v, u]), axis=1)
-    assert np.abs(binned * 2 - raw.reshape(-1, 2)).max() < 0.02, "the binned map samples the raw image where the full one does, halved"
+    assert np.abs(binned * 2 + 0.5 - raw.reshape(-1, 2)).max() < 0.02, "binned raw pixel u' is sensor pixel 2u' + 0.5: the full map's point"
     info = camera_info()
     info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = 8, 4, 32, 24
     info.binning_x = info.binning_y = 2
-    assert rectification_from_camera_info(info).intrinsics == PinholeIntrinsics(fx=30.0, fy=31.0, cx=16.0, cy=13.0, width=16, height=12)
+    assert rectification_from_camera_info(info).intrinsics == PinholeIntrinsics(fx=30.0, fy=31.0, cx=15.75, cy=12.75, width=16, height=12)
     info.d = PLUMB_BOB
     with pytest.raises(DecodeError, match="region of interest") as error:
         rectification_from_camera_info(info)

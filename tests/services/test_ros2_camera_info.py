@@ -80,5 +80,6 @@ def test_a_binned_image_takes_the_binned_intrinsics():
     info = messages.camera_info(1.0, full)
     info.binning_x = info.binning_y = 2
     send(ingest, publishers, info, PIXELS, 1.0)
-    assert ingest.bad.total == 0 and decode_image(frames[0])[0].intrinsics == SENSOR
+    binned = PinholeIntrinsics(fx=20.0, fy=21.0, cx=7.75, cy=5.75, width=16, height=12)  # (c + 0.5) / 2 - 0.5: pixel centres at integers
+    assert ingest.bad.total == 0 and decode_image(frames[0])[0].intrinsics == binned
     ingest.close()
