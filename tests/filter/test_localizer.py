@@ -127,15 +127,25 @@ def test_particle_count_and_noise_are_restored_when_the_spread_grows(generator):
     assert torch.allclose(localizer.noise_sigma(), localizer.config.motion.sigma_vector())
 
 
+def particle_state(localizer: Localizer) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """A copy of the particles' poses, log-weights and generation."""
+    return localizer.particles.poses.clone(), localizer.particles.log_weights.clone(), localizer.particles.generation
+
+
+def assert_same_particles(localizer: Localizer, before: tuple[torch.Tensor, torch.Tensor, int]) -> None:
+    """The particles are exactly those of :func:`particle_state`'s copy: poses, log-weights and generation."""
+    assert torch.equal(localizer.particles.poses, before[0]) and torch.equal(localizer.particles.log_weights, before[1])
+    assert localizer.particles.generation == before[2]
+
+
 def test_degenerate_update_keeps_particles_and_weights(generator):
     localizer = make_localizer(generator)
     localizer.initialize(line_of_particles(8))
-    before = (localizer.particles.poses.clone(), localizer.particles.log_weights.clone(), localizer.particles.generation)
+    before = particle_state(localizer)
     snap = localizer.snapshot()
     report = localizer.merge(snap.epoch, snap.generation, snap.ids, torch.full((8,), float("nan")))
     assert report.outcome == "degenerate" and localizer.counters["degenerate"] == 1
-    assert torch.equal(localizer.particles.poses, before[0]) and torch.equal(localizer.particles.log_weights, before[1])
-    assert localizer.particles.generation == before[2]
+    assert_same_particles(localizer, before)
 
 
 def test_merge_refuses_mismatched_arrays(generator):
@@ -235,12 +245,11 @@ def test_an_update_whose_every_render_failed_is_degenerate_and_recovery_is_not_f
         localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(100, dtype=torch.float64))
     failed = torch.full((100,), -torch.inf, dtype=torch.float64)
     failed[:10], failed[10:20] = float("nan"), torch.inf
-    before = (localizer.particles.poses.clone(), localizer.particles.log_weights.clone(), localizer.particles.generation)
+    before = particle_state(localizer)
     snap = localizer.snapshot()
     report = localizer.merge(snap.epoch, snap.generation, snap.ids, failed)
     assert report.outcome == "degenerate" and report.injected == 0 and localizer.counters["degenerate"] == 1
-    assert torch.equal(localizer.particles.poses, before[0]) and torch.equal(localizer.particles.log_weights, before[1])
-    assert localizer.particles.generation == before[2]
+    assert_same_particles(localizer, before)
     # Had the failure reached the recovery monitor, this update at the usual level would inject.
     snap = localizer.snapshot()
     assert localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(100, dtype=torch.float64)).injected == 0
@@ -258,13 +267,12 @@ def test_a_result_whose_only_finite_scores_belong_to_particles_resampled_away_is
     favour_three_and_five = torch.full((8,), -1e6, dtype=torch.float64)
     favour_three_and_five[[3, 5]] = 0.0
     localizer.merge(early.epoch, early.generation, early.ids, favour_three_and_five)
-    before = (localizer.particles.poses.clone(), localizer.particles.log_weights.clone(), localizer.particles.generation)
+    before = particle_state(localizer)
     scores = torch.zeros(8, dtype=torch.float64)
     scores[[3, 5]] = torch.tensor(failures, dtype=torch.float64)
     report = localizer.merge(late.epoch, late.generation, late.ids, scores)
     assert report.outcome == "degenerate" and localizer.counters["degenerate"] == 1
-    assert torch.equal(localizer.particles.poses, before[0]) and torch.equal(localizer.particles.log_weights, before[1])
-    assert localizer.particles.generation == before[2]
+    assert_same_particles(localizer, before)
 
 
 def test_the_effective_sample_size_reported_is_that_of_the_update_before_resampling(generator):
