@@ -4,6 +4,8 @@ ALL_COMPLETE query reaches only queryables declared ``complete``, as rmw_zenoh's
 
 from __future__ import annotations
 
+import time
+
 import zenoh
 
 from services.transport import TransportConfig
@@ -26,6 +28,7 @@ class RmwServiceClient:
         that came within ``timeout`` seconds (rmw_zenoh keeps zenoh's default; a test needs a bound)."""
         querier = self._session.declare_querier(key, target=zenoh.QueryTarget.ALL_COMPLETE, consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout)
         try:
+            self._wait_for_server(querier, time.monotonic() + timeout)
             replies = []
             for reply in querier.get(payload=request, attachment=attachment):
                 if reply.ok is not None:
@@ -34,6 +37,15 @@ class RmwServiceClient:
             return replies
         finally:
             querier.undeclare()
+
+    @staticmethod
+    def _wait_for_server(querier: zenoh.Querier, deadline: float) -> None:
+        """Wait until a complete queryable matches the querier, as ``ros2 service call`` waits for the
+        service to be available before it sends: a session opened just now has not yet learnt the
+        server's declaration, and a query sent before that reaches nobody. Returns at ``deadline``
+        (monotonic seconds) in any case; the call then finds no server."""
+        while not querier.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.02)
 
     def close(self) -> None:
         """Release the session."""
