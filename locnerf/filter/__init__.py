@@ -1,9 +1,9 @@
 """The Loc-NeRF particle filter: particles, motion and measurement models, resampling, annealing,
 initialisation, recovery, the estimate, and the localizer that ties them together (no I/O)."""
 
+from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.localizer import (
-    ConvergenceProtectionConfig,
     Localizer,
     LocalizerConfig,
     MergeOutcome,

@@ -20,7 +20,9 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.filter import initialization
+from locnerf.filter.ancestor_scores import ancestor_log_likelihoods, failures_as_impossible
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
+from locnerf.filter.convergence_protection import ConvergenceProtectionConfig, redrawn_positions
 from locnerf.filter.depth_measurement import (
     DepthObservation,
     SurfaceDistanceLookup,
@@ -33,7 +35,7 @@ from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
 from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_around_keyframes
 from locnerf.filter.keyframes import KeyframeIndex
 from locnerf.filter.kld import KldConfig, kld_resample
-from locnerf.filter.lineage import NO_ANCESTOR, Lineage, lookup
+from locnerf.filter.lineage import NO_ANCESTOR, Lineage
 from locnerf.filter.measurement import (
     MeasurementConfig,
     RenderRays,
@@ -53,15 +55,6 @@ from locnerf.render.camera import PinholeIntrinsics
 logger = logging.getLogger(__name__)
 
 CandidateSource = Callable[[], KeyframeCandidates | None]
-
-
-class ConvergenceProtectionConfig(BaseModel):
-    """Loc-NeRF's "convergence protection": before each update, re-draw a few particles near the mean."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    count: int = Field(10, ge=0, description="Particles whose positions are re-drawn before each update (0 disables).")
-    half_width: float = Field(0.2, ge=0, description="Re-drawn positions are uniform in mean ± half_width per axis (map units).")
 
 
 class LocalizerConfig(BaseModel):
@@ -147,24 +140,6 @@ class MergeReport:
     injected: int = 0
     rays: int = 0
     """Rays rendered for the update (set by :meth:`Localizer.update`; 0 for merged results of others)."""
-
-
-def _failures_as_impossible(log_likelihoods: torch.Tensor) -> torch.Tensor:
-    """(K,) log-likelihoods with NaN and +inf (failed computations) made −inf, like a failed render; −inf stays −inf."""
-    failed = torch.isnan(log_likelihoods) | (log_likelihoods == torch.inf)
-    return log_likelihoods.masked_fill(failed, -torch.inf)
-
-
-def _per_particle_log_likelihoods(ids: torch.Tensor, log_likelihoods: torch.Tensor, ancestors: torch.Tensor) -> torch.Tensor:
-    """Each current particle's log-likelihood (N,) float64: its ancestor's, from the snapshot's ``ids`` (K,) and
-    ``log_likelihoods`` (K,); particles with no ancestor in the snapshot (injected or re-drawn since, ``ancestors``
-    (N,) :data:`NO_ANCESTOR`) get the median of the finite ones (−inf when there is none)."""
-    order = torch.argsort(ids)
-    per_particle = lookup(ids[order], log_likelihoods[order], ancestors, float("nan"))
-    finite = torch.isfinite(log_likelihoods)
-    stand_in = log_likelihoods[finite].median() if bool(finite.any()) else -torch.inf
-    per_particle[torch.isnan(per_particle) | (ancestors == NO_ANCESTOR)] = stand_in
-    return per_particle
 
 
 class Localizer:
@@ -308,16 +283,13 @@ class Localizer:
         median likelihood, never the one computed for the pose they replaced (design section 3). Until
         an update weighs them they are, like recovery's injections, left out of the estimate
         (``parent_ids`` is :data:`NO_ANCESTOR`)."""
-        protection = self.config.convergence_protection
-        count = min(protection.count, particles.count)
-        if count == 0 or protection.half_width == 0:
+        redrawn = redrawn_positions(particles.positions, particles.weights, self.config.convergence_protection, self.generator)
+        if redrawn is None:
             return
-        mean = (particles.weights[:, None] * particles.positions).sum(dim=0)
-        chosen = torch.randperm(particles.count, generator=self.generator)[:count].to(self.device)
-        offsets = initialization.uniform(count * 3, -protection.half_width, protection.half_width, self.generator)
-        particles.poses[chosen, :3, 3] = mean + offsets.reshape(count, 3).to(self.device, self.dtype)
+        chosen, positions = redrawn
+        particles.poses[chosen, :3, 3] = positions
         ids, lineage_parents, parent_ids = particles.ids.clone(), particles.ids.clone(), particles.parent_ids.clone()
-        ids[chosen] = self._fresh_ids(count)
+        ids[chosen] = self._fresh_ids(len(chosen))
         lineage_parents[chosen] = NO_ANCESTOR
         parent_ids[chosen] = NO_ANCESTOR
         self._start_generation(particles, ids, lineage_parents)
@@ -406,7 +378,7 @@ class Localizer:
             logger.info("dropping an update: %s", error)
             return self._record(MergeOutcome.STALE)
 
-        per_particle = _per_particle_log_likelihoods(ids, _failures_as_impossible(log_likelihoods), ancestors)
+        per_particle = ancestor_log_likelihoods(ids, failures_as_impossible(log_likelihoods), ancestors)
         log_weights = particles.log_weights.double().cpu()
         if not bool(torch.isfinite(log_weights + per_particle).any()):
             logger.warning("degenerate update (no current particle has a finite likelihood): particles and weights kept unchanged")

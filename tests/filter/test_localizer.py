@@ -9,7 +9,7 @@ import torch
 
 from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.annealing import AnnealingConfig
-from locnerf.filter.localizer import ConvergenceProtectionConfig
+from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.measurement import MeasurementConfig
 from locnerf.filter.motion import MotionNoiseConfig
 from locnerf.filter.recovery import RecoveryConfig

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
-from locnerf.filter.localizer import ConvergenceProtectionConfig
+from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.motion import MotionNoiseConfig
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses, keyframe_particles
 from locnerf.geometry import make_pose, rotation_error_deg, se3_exp, se3_log, so3_exp, translation_error

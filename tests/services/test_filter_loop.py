@@ -11,8 +11,8 @@ import torch
 
 from locnerf.config import preset
 from locnerf.field.protocol import MapNormalization
+from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.estimate import carry_estimate
-from locnerf.filter.localizer import ConvergenceProtectionConfig
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
 from locnerf.maps.keyframes import build_keyframe_index
