@@ -19,12 +19,12 @@ from collections.abc import Callable
 
 import torch
 
-from cli import bench_filter, bench_world
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.field.map_file import load_map
 from locnerf.field.nerf_pytorch import NerfMLP, NerfPytorchMap
 from locnerf.render.rays import rays_from_poses_and_pixels
+from locnerf_cli import bench_filter, bench_world
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -35,7 +35,6 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import RadianceMap, surface_distance_of, surface_renderer
@@ -63,6 +62,7 @@ from locnerf.messages.codec import decode, decode_image, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, UpdateRequest, UpdateResult
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import SurfaceRays, render_views
+from locnerf_cli.bench_table import BenchTable
 
 
 def add_target(targets: argparse._SubParsersAction) -> None:

@@ -6,10 +6,10 @@ import argparse
 
 import torch
 
-from cli.bench_table import BenchTable
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.sim.benchmark import benchmark_world
+from locnerf_cli.bench_table import BenchTable
 
 
 def add_target(targets: argparse._SubParsersAction) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from services.transport import Bus, TransportConfig, open_bus
+from locnerf_services.transport import Bus, TransportConfig, open_bus
 
 DEFAULT_PORT = 7447
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import time
 
-from cli.bus_client import add_bus_arguments, open_cli_bus
-from cli.monitor import GroundTruthMatcher, pose_line
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import PoseEstimate, PoseStamped
-from services.transport import Inbox
+from locnerf_cli.bus_client import add_bus_arguments, open_cli_bus
+from locnerf_cli.monitor import GroundTruthMatcher, pose_line
+from locnerf_services.transport import Inbox
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from cli import eval_single_image, eval_tracking
+from locnerf_cli import eval_single_image, eval_tracking
 
 EXPERIMENTS = (eval_single_image, eval_tracking)
 

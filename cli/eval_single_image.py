@@ -10,7 +10,6 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from cli.flags import NO_DEPTH_HELP, from_flags, without_depth
 from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
 from locnerf.data.colour_camera import on_map_camera
@@ -35,6 +34,7 @@ from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import open_map
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import render_image
+from locnerf_cli.flags import NO_DEPTH_HELP, from_flags, without_depth
 
 logger = logging.getLogger(__name__)
 

@@ -9,8 +9,6 @@ from pathlib import Path
 
 import torch
 
-from cli.eval_tracking_live import run_live
-from cli.flags import NO_DEPTH_HELP, from_flags, without_depth
 from locnerf.config import load_config, preset
 from locnerf.data.colour_camera import map_colour_camera
 from locnerf.devices import resolve_device
@@ -34,6 +32,8 @@ from locnerf.sim.scenario import ScenarioConfig, build_scenario, check_timeline
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld
+from locnerf_cli.eval_tracking_live import run_live
+from locnerf_cli.flags import NO_DEPTH_HELP, from_flags, without_depth
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -20,7 +20,6 @@ from typing import Any
 
 import torch
 
-from cli.up import ServiceConfigs, start_services
 from locnerf.data.colour_camera import map_colour_camera
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import ConvergenceConfig
@@ -29,12 +28,13 @@ from locnerf.maps.source import WORLD, open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
 from locnerf.messages.schemas import Odometry, PoseEstimate, PoseStamped, UpdateResult
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.filter_loop.service import FilterLoopConfig
-from services.local_hub import LocalHub
-from services.nerf_worker.__main__ import WorkerConfig
-from services.sensor_ingest.__main__ import IngestConfig
-from services.transport import Inbox
+from locnerf_cli.up import ServiceConfigs, start_services
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.filter_loop.service import FilterLoopConfig
+from locnerf_services.local_hub import LocalHub
+from locnerf_services.nerf_worker.__main__ import WorkerConfig
+from locnerf_services.sensor_ingest.__main__ import IngestConfig
+from locnerf_services.transport import Inbox
 
 logger = logging.getLogger(__name__)
 

@@ -34,11 +34,11 @@ from locnerf.eval.fuzz_payloads import ACCEPTED, TARGETS, FuzzTarget, Hostile
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, ServiceStatus
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.local_hub import LocalHub
-from services.nerf_worker.__main__ import WorkerConfig
-from services.sensor_ingest.__main__ import IngestConfig
-from services.transport import TransportConfig
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.local_hub import LocalHub
+from locnerf_services.nerf_worker.__main__ import WorkerConfig
+from locnerf_services.sensor_ingest.__main__ import IngestConfig
+from locnerf_services.transport import TransportConfig
 
 logger = logging.getLogger(__name__)
 

@@ -22,20 +22,20 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from cli.flags import from_flags
-from cli.up import ServiceConfigs, start_services
 from locnerf.config import preset
 from locnerf.eval.loadtest_process import ProcessSample, process_usage, read_process_sample
 from locnerf.eval.loadtest_recorder import LoadRecorder
 from locnerf.eval.loadtest_sweep import plot_sweep, write_sweep_csv
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.local_hub import LocalHub
-from services.nerf_worker.__main__ import WorkerConfig
-from services.sensor_ingest.__main__ import IngestConfig
-from services.supervisor import write_config
-from services.transport import Inbox
+from locnerf_cli.flags import from_flags
+from locnerf_cli.up import ServiceConfigs, start_services
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.local_hub import LocalHub
+from locnerf_services.nerf_worker.__main__ import WorkerConfig
+from locnerf_services.sensor_ingest.__main__ import IngestConfig
+from locnerf_services.supervisor import write_config
+from locnerf_services.transport import Inbox
 
 FIRST_POSE_TIMEOUT_S = 180.0
 

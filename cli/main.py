@@ -32,19 +32,23 @@ class Command:
 
 
 COMMANDS: dict[str, Command] = {
-    "eval": Command("the paper's experiments (single image, global, tracking)", lambda: importlib.import_module("cli.eval")),
-    "localize": Command("single-image localization trials (paper protocols)", lambda: importlib.import_module("cli.localize")),
-    "map": Command("build, evaluate, render and describe map files", lambda: importlib.import_module("cli.map")),
-    "bench": Command("micro-benchmarks: render (a map), world (the procedural world), filter (hot paths)", lambda: importlib.import_module("cli.bench")),
-    "run": Command("run one service (ingest, filter, worker, router)", lambda: importlib.import_module("cli.run")),
-    "up": Command("start ingest, filter and worker(s) locally; Ctrl-C stops them", lambda: importlib.import_module("cli.up")),
-    "echo": Command("print a topic (pose)", lambda: importlib.import_module("cli.echo")),
-    "send": Command("send a command to the filter", lambda: importlib.import_module("cli.send")),
-    "loadtest": Command("drive the services with a synthetic stream; rates, latency, jitter, losses, CPU", lambda: importlib.import_module("cli.loadtest")),
-    "certs": Command("a test CA and per-service TLS certificates (CN = role) for Zenoh", lambda: importlib.import_module("cli.certs")),
+    "eval": Command("the paper's experiments (single image, global, tracking)", lambda: importlib.import_module("locnerf_cli.eval")),
+    "localize": Command("single-image localization trials (paper protocols)", lambda: importlib.import_module("locnerf_cli.localize")),
+    "map": Command("build, evaluate, render and describe map files", lambda: importlib.import_module("locnerf_cli.map")),
+    "bench": Command(
+        "micro-benchmarks: render (a map), world (the procedural world), filter (hot paths)", lambda: importlib.import_module("locnerf_cli.bench")
+    ),
+    "run": Command("run one service (ingest, filter, worker, router)", lambda: importlib.import_module("locnerf_cli.run")),
+    "up": Command("start ingest, filter and worker(s) locally; Ctrl-C stops them", lambda: importlib.import_module("locnerf_cli.up")),
+    "echo": Command("print a topic (pose)", lambda: importlib.import_module("locnerf_cli.echo")),
+    "send": Command("send a command to the filter", lambda: importlib.import_module("locnerf_cli.send")),
+    "loadtest": Command(
+        "drive the services with a synthetic stream; rates, latency, jitter, losses, CPU", lambda: importlib.import_module("locnerf_cli.loadtest")
+    ),
+    "certs": Command("a test CA and per-service TLS certificates (CN = role) for Zenoh", lambda: importlib.import_module("locnerf_cli.certs")),
     "fuzz": Command(
         "hostile payloads on every subscribed key of running services; checks counts, memory, pose rate",
-        lambda: importlib.import_module("cli.fuzz"),
+        lambda: importlib.import_module("locnerf_cli.fuzz"),
     ),
 }
 

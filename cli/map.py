@@ -11,7 +11,6 @@ import cv2
 import numpy as np
 import torch
 
-from cli.flags import from_flags
 from locnerf.data import read_dataset
 from locnerf.data.colour_camera import on_map_camera
 from locnerf.devices import resolve_device
@@ -27,6 +26,7 @@ from locnerf.field.surface_distance import SurfaceDistanceConfig
 from locnerf.render.image import render_image
 from locnerf.train import BuildConfig, RoomConfig, build_map, evaluate_held_out, psnr
 from locnerf.train.surface_layer import surface_distance_of_frames
+from locnerf_cli.flags import from_flags
 
 logger = logging.getLogger(__name__)
 

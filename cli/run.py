@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 from types import ModuleType
 
-import services.filter_loop.__main__ as filter_process
-import services.nerf_worker.__main__ as worker_process
-import services.router.__main__ as router_process
-import services.sensor_ingest.__main__ as ingest_process
+import locnerf_services.filter_loop.__main__ as filter_process
+import locnerf_services.nerf_worker.__main__ as worker_process
+import locnerf_services.router.__main__ as router_process
+import locnerf_services.sensor_ingest.__main__ as ingest_process
 
 # Each service's ``__main__`` module: its ``add_arguments(parser)`` and ``run(args)``, with the help line.
 SERVICES: dict[str, tuple[ModuleType, str]] = {

@@ -11,13 +11,13 @@ import re
 import sys
 import time
 
-from cli.bus_client import add_bus_arguments, open_cli_bus
-from cli.flags import from_flags
 from locnerf.errors import LocnerfInputError
 from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import GlobalLocalizationCommand, InitialPoseCommand
-from services.transport import Inbox
+from locnerf_cli.bus_client import add_bus_arguments, open_cli_bus
+from locnerf_cli.flags import from_flags
+from locnerf_services.transport import Inbox
 
 # Python's argparse (before 3.13) takes "-1.5e-05", as Python prints small negative numbers, for an
 # option name; a pose copied from a log must parse, so these parsers know every float spelling.

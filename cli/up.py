@@ -22,18 +22,18 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from cli.bus_client import DEFAULT_PORT
-from cli.monitor import GroundTruthMatcher, PoseError, pose_line
 from locnerf.errors import LocnerfInputError
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, Odometry, PoseEstimate, PoseStamped
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.local_hub import LocalHub
-from services.nerf_worker.__main__ import WorkerConfig
-from services.runtime import load_service_config
-from services.sensor_ingest.__main__ import IngestConfig
-from services.transport import Inbox
+from locnerf_cli.bus_client import DEFAULT_PORT
+from locnerf_cli.monitor import GroundTruthMatcher, PoseError, pose_line
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.local_hub import LocalHub
+from locnerf_services.nerf_worker.__main__ import WorkerConfig
+from locnerf_services.runtime import load_service_config
+from locnerf_services.sensor_ingest.__main__ import IngestConfig
+from locnerf_services.transport import Inbox
 
 STARTUP_TIMEOUT_S = 180.0
 STREAM_MARGIN_S = 60.0

@@ -11,9 +11,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
 
-from services.supervisor import STOP_TIMEOUT_S, Supervisor, free_port, loopback_environment
-from services.transport import TransportConfig, open_bus
-from services.transport.bus import Bus, Closeable, SampleCallback
+from locnerf_services.supervisor import STOP_TIMEOUT_S, Supervisor, free_port, loopback_environment
+from locnerf_services.transport import TransportConfig, open_bus
+from locnerf_services.transport.bus import Bus, Closeable, SampleCallback
 
 
 class LocalHub:

@@ -25,15 +25,15 @@ from pathlib import Path
 import tomli_w
 from pydantic import BaseModel
 
-from services.transport.config import ENV_CONNECT, ENV_LISTEN, ENV_MODE
+from locnerf_services.transport.config import ENV_CONNECT, ENV_LISTEN, ENV_MODE
 
 logger = logging.getLogger(__name__)
 
 SERVICE_PACKAGES = {
-    "ingest": "services.sensor_ingest",
-    "filter": "services.filter_loop",
-    "worker": "services.nerf_worker",
-    "router": "services.router",
+    "ingest": "locnerf_services.sensor_ingest",
+    "filter": "locnerf_services.filter_loop",
+    "worker": "locnerf_services.nerf_worker",
+    "router": "locnerf_services.router",
 }
 """The package run by ``python -m`` for each kind of service."""
 

@@ -1,6 +1,7 @@
 """The layering rules of the design notes, checked by walking every module's imports.
 
-Layers, bottom to top: ``locnerf`` (the library) <- ``services`` <- ``cli`` (the entry point).
+Layers, bottom to top: ``locnerf`` (the library) <- ``services`` <- ``cli`` (the entry point); the
+folders ``services`` and ``cli`` install as the packages ``locnerf_services`` and ``locnerf_cli``.
 A module's imports are its ``import`` statements (anywhere in the file, functions included) and its
 dynamic imports whose module name is a constant string (``importlib.import_module("x")``,
 ``__import__("x")``, ``importlib.util.find_spec("x")``, ...): those obey the same rules. A dynamic
@@ -21,6 +22,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 STDLIB = set(sys.stdlib_module_names)
 LAYERS = ("locnerf", "services", "cli")
+PACKAGE_OF_FOLDER = {"locnerf": "locnerf", "services": "locnerf_services", "cli": "locnerf_cli"}
 
 # Calls that import the module named by their first argument.
 DYNAMIC_IMPORTERS = {
@@ -87,7 +89,8 @@ def file_imports(path: Path, root: Path) -> FileImports:
     """Absolute names of every module a Python file imports, statically (relative imports resolved) or
     dynamically with a constant name, and the lines where a dynamic import's name is computed."""
     tree = ast.parse(path.read_text(), filename=str(path))
-    package = ".".join(path.relative_to(root).with_suffix("").parts[:-1])
+    folders = path.relative_to(root).with_suffix("").parts[:-1]
+    package = ".".join((PACKAGE_OF_FOLDER.get(folders[0], folders[0]), *folders[1:])) if folders else ""
     found = FileImports()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -130,11 +133,11 @@ def top(name: str) -> str:
 
 
 def library_breach(_: Path, name: str) -> bool:
-    return top(name) in {"zenoh", "services", "cli"}
+    return top(name) in {"zenoh", "locnerf_services", "locnerf_cli"}
 
 
 def services_breach(_: Path, name: str) -> bool:
-    return top(name) == "cli"
+    return top(name) == "locnerf_cli"
 
 
 def test_library_never_imports_zenoh_services_or_the_cli():
@@ -158,26 +161,26 @@ def test_the_checker_sees_dynamic_imports(tmp_path):
         "import importlib\n"
         "from importlib import import_module as load\n"
         "import importlib.util\n"
-        "importlib.import_module('cli.main')\n"
-        "load('cli.up')\n"
-        "__import__('cli')\n"
-        "importlib.util.find_spec('cli.run')\n"
-        "importlib.import_module('.poses', 'services')\n"
-        "name = 'cli.' + 'echo'\n"
+        "importlib.import_module('locnerf_cli.main')\n"
+        "load('locnerf_cli.up')\n"
+        "__import__('locnerf_cli')\n"
+        "importlib.util.find_spec('locnerf_cli.run')\n"
+        "importlib.import_module('.poses', 'locnerf_services')\n"
+        "name = 'locnerf_cli.' + 'echo'\n"
         "importlib.import_module(name)\n"
     )
     (tmp_path / "locnerf").mkdir()
-    (tmp_path / "locnerf" / "hidden.py").write_text("def transport():\n    return __import__('services.transport')\n")
+    (tmp_path / "locnerf" / "hidden.py").write_text("def transport():\n    return __import__('locnerf_services.transport')\n")
 
     assert offenders("services", services_breach, root=tmp_path) == [
-        "services/sneaky.py imports cli",
-        "services/sneaky.py imports cli.main",
-        "services/sneaky.py imports cli.run",
-        "services/sneaky.py imports cli.up",
+        "services/sneaky.py imports locnerf_cli",
+        "services/sneaky.py imports locnerf_cli.main",
+        "services/sneaky.py imports locnerf_cli.run",
+        "services/sneaky.py imports locnerf_cli.up",
     ]
-    assert "services.poses" in file_imports(tmp_path / "services" / "sneaky.py", tmp_path).modules
+    assert "locnerf_services.poses" in file_imports(tmp_path / "services" / "sneaky.py", tmp_path).modules
     assert computed_dynamic_imports("services", root=tmp_path) == ["services/sneaky.py:10"]
-    assert offenders("locnerf", library_breach, root=tmp_path) == ["locnerf/hidden.py imports services.transport"]
+    assert offenders("locnerf", library_breach, root=tmp_path) == ["locnerf/hidden.py imports locnerf_services.transport"]
 
 
 def test_only_the_transport_imports_zenoh():

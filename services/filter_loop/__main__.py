@@ -17,11 +17,11 @@ from locnerf.devices import resolve_device
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import map_identity, open_map
-from services.filter_loop.driver import FilterDriver
-from services.filter_loop.service import FilterLoop, FilterLoopConfig
-from services.ros2.config import Ros2Config
-from services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, service_main, stop_on_signals
-from services.transport import Bus, TransportConfig, open_bus
+from locnerf_services.filter_loop.driver import FilterDriver
+from locnerf_services.filter_loop.service import FilterLoop, FilterLoopConfig
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.runtime import limit_torch_threads, load_service_config, prefer_latency_over_throughput, service_main, stop_on_signals
+from locnerf_services.transport import Bus, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
 
@@ -66,7 +66,7 @@ def serve(loop: FilterLoop, bus: Bus, stop: threading.Event, ros2: Ros2Config | 
     first (:mod:`services.filter_loop.driver`); with ``ros2`` enabled it also speaks ROS 2."""
     bridge = None
     if ros2 is not None and ros2.enabled:
-        from services.ros2.filter_bridge import FilterRos2Bridge
+        from locnerf_services.ros2.filter_bridge import FilterRos2Bridge
 
         bridge = FilterRos2Bridge(loop, bus, ros2)
         logger.info("ROS 2 node %s in domain %d (session %s)", ros2.node_name, ros2.domain_id, bus.session_id)

@@ -41,14 +41,14 @@ from typing import TYPE_CHECKING, Any
 
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError
-from services.filter_loop.lanes import LaneInbox
-from services.filter_loop.service import FilterLoop, Outgoing
-from services.filter_loop.timings import ThreadTimings
-from services.transport import Bus, LatestSlot
-from services.transport.bus import Closeable
+from locnerf_services.filter_loop.lanes import LaneInbox
+from locnerf_services.filter_loop.service import FilterLoop, Outgoing
+from locnerf_services.filter_loop.timings import ThreadTimings
+from locnerf_services.transport import Bus, LatestSlot
+from locnerf_services.transport.bus import Closeable
 
 if TYPE_CHECKING:
-    from services.ros2.filter_bridge import FilterRos2Bridge
+    from locnerf_services.ros2.filter_bridge import FilterRos2Bridge
 
 logger = logging.getLogger(__name__)
 

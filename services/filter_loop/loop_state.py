@@ -24,7 +24,7 @@ import torch
 
 from locnerf.filter.estimate import ParticleEstimate, carry_estimate
 from locnerf.filter.localizer import Localizer, MergeOutcome, MergeReport
-from services.filter_loop.dispatcher import CompletedUpdate
+from locnerf_services.filter_loop.dispatcher import CompletedUpdate
 
 
 class LoopState(enum.Enum):

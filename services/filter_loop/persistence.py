@@ -10,8 +10,8 @@ from pathlib import Path
 
 import torch
 
-from services.filter_loop.state_file import SavedPose, load_pose
-from services.filter_loop.state_writer import StateWriter
+from locnerf_services.filter_loop.state_file import SavedPose, load_pose
+from locnerf_services.filter_loop.state_writer import StateWriter
 
 logger = logging.getLogger(__name__)
 

@@ -44,14 +44,14 @@ from locnerf.messages.schemas import (
     WarpRequest,
 )
 from locnerf.messages.stamps import nanoseconds_from_seconds
-from services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
-from services.filter_loop.frames import FilterFrames
-from services.filter_loop.image_hold import Frame, ImageHold
-from services.filter_loop.loop_state import LoopStateMachine
-from services.filter_loop.odometry_history import OdometryHistory
-from services.filter_loop.persistence import PosePersistence
-from services.rgbd import depth_request
-from services.runtime import BadMessages, RateMeter
+from locnerf_services.filter_loop.dispatcher import AddressedRequest, UnknownRequestError, UpdateDispatcher
+from locnerf_services.filter_loop.frames import FilterFrames
+from locnerf_services.filter_loop.image_hold import Frame, ImageHold
+from locnerf_services.filter_loop.loop_state import LoopStateMachine
+from locnerf_services.filter_loop.odometry_history import OdometryHistory
+from locnerf_services.filter_loop.persistence import PosePersistence
+from locnerf_services.rgbd import depth_request
+from locnerf_services.runtime import BadMessages, RateMeter
 
 logger = logging.getLogger(__name__)
 

@@ -14,8 +14,8 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
-from services.filter_loop.state_file import SavedPose, save_pose
-from services.transport import LatestSlot
+from locnerf_services.filter_loop.state_file import SavedPose, save_pose
+from locnerf_services.transport import LatestSlot
 
 logger = logging.getLogger(__name__)
 

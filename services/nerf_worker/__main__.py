@@ -16,9 +16,9 @@ from locnerf.maps.source import open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode, encode
 from locnerf.messages.schemas import RefusalReason, UpdateRefusal, UpdateRequest
-from services.nerf_worker.service import NerfWorker
-from services.runtime import BadMessages, StatusPublisher, default_instance_id, limit_torch_threads, load_service_config, service_main, stop_on_signals
-from services.transport import Bus, Inbox, TransportConfig, open_bus
+from locnerf_services.nerf_worker.service import NerfWorker
+from locnerf_services.runtime import BadMessages, StatusPublisher, default_instance_id, limit_torch_threads, load_service_config, service_main, stop_on_signals
+from locnerf_services.transport import Bus, Inbox, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
 

@@ -25,7 +25,7 @@ from locnerf.filter.warp import WarpReference, render_reference, warp_log_likeli
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.maps.source import map_identity
 from locnerf.messages.schemas import DepthRequest, RefusalReason, UpdateRefusal, UpdateRequest, UpdateResult
-from services.rgbd import depth_observation
+from locnerf_services.rgbd import depth_observation
 
 logger = logging.getLogger(__name__)
 

@@ -23,8 +23,8 @@ from locnerf.ros2.naming import (
     fully_qualified_name,
 )
 from locnerf.ros2.types import serialize
-from services.transport import Bus
-from services.transport.bus import AttachedCallback, Closeable, Reply
+from locnerf_services.transport import Bus
+from locnerf_services.transport.bus import AttachedCallback, Closeable, Reply
 
 ServiceHandler = Callable[[str, bytes, Attachment | None], bytes | None]
 

@@ -31,10 +31,10 @@ from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.camera_info import Rectification, rectification_from_camera_info
 from locnerf.ros2.naming import check_key
 from locnerf.ros2.types import deserialize
-from services.ros2.config import Ros2Config
-from services.ros2.depth_pairing import DepthPairing
-from services.ros2.node import Ros2Node
-from services.transport import Inbox
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.ros2.depth_pairing import DepthPairing
+from locnerf_services.ros2.node import Ros2Node
+from locnerf_services.transport import Inbox
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 IMAGE = "sensor_msgs/msg/Image"

@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 
 from locnerf.errors import LocnerfInputError
-from services.runtime import service_main, stop_on_signals
-from services.transport.router import Router, router_config
+from locnerf_services.runtime import service_main, stop_on_signals
+from locnerf_services.transport.router import Router, router_config
 
 logger = logging.getLogger(__name__)
 

@@ -24,8 +24,8 @@ from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus
 from locnerf.sim.events import SensorEvent
 from locnerf.sim.world import ProceduralWorld
-from services.ros2.config import Ros2Config
-from services.runtime import (
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.runtime import (
     BadMessages,
     StatusPublisher,
     default_instance_id,
@@ -35,15 +35,15 @@ from services.runtime import (
     service_main,
     stop_on_signals,
 )
-from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
-from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
-from services.sensor_ingest.prefetch import PrefetchedEvents
-from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
-from services.sensor_ingest.ros2_source import Ros2Ingest
-from services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
-from services.sensor_ingest.service import Pacer, event_message
-from services.sensor_ingest.world_source import WorldSourceConfig, world_events
-from services.transport import Bus, Inbox, TransportConfig, open_bus
+from locnerf_services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
+from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
+from locnerf_services.sensor_ingest.prefetch import PrefetchedEvents
+from locnerf_services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
+from locnerf_services.sensor_ingest.ros2_source import Ros2Ingest
+from locnerf_services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
+from locnerf_services.sensor_ingest.service import Pacer, event_message
+from locnerf_services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from locnerf_services.transport import Bus, Inbox, TransportConfig, open_bus
 
 logger = logging.getLogger(__name__)
 

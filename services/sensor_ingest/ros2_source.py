@@ -18,11 +18,11 @@ from collections.abc import Callable
 
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError
-from services.ros2.config import Ros2Config
-from services.ros2.node import Ros2Node
-from services.ros2.sensors import Received, Ros2Sensors
-from services.runtime import BadMessages
-from services.transport import Bus, Inbox, LatestSlot
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.ros2.node import Ros2Node
+from locnerf_services.ros2.sensors import Received, Ros2Sensors
+from locnerf_services.runtime import BadMessages
+from locnerf_services.transport import Bus, Inbox, LatestSlot
 
 logger = logging.getLogger(__name__)
 

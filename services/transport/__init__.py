@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from services.transport.bus import Bus, Inbox, LatestSlot
-from services.transport.config import TransportConfig
+from locnerf_services.transport.bus import Bus, Inbox, LatestSlot
+from locnerf_services.transport.config import TransportConfig
 
 
 def open_bus(config: TransportConfig) -> Bus:
     """A Zenoh bus for ``config`` (imports zenoh only when called)."""
-    from services.transport.zenoh_bus import ZenohBus
+    from locnerf_services.transport.zenoh_bus import ZenohBus
 
     return ZenohBus(config)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 
-from services.transport.bus import AttachedCallback, LivelinessCallback, QueryHandler, Reply, SampleCallback
+from locnerf_services.transport.bus import AttachedCallback, LivelinessCallback, QueryHandler, Reply, SampleCallback
 
 
 def key_matches(key_expr: str, key: str) -> bool:

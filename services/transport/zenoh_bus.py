@@ -7,8 +7,8 @@ import logging
 
 import zenoh
 
-from services.transport.bus import AttachedCallback, LivelinessCallback, QueryHandler, Reply, SampleCallback
-from services.transport.config import TlsConfig, TransportConfig
+from locnerf_services.transport.bus import AttachedCallback, LivelinessCallback, QueryHandler, Reply, SampleCallback
+from locnerf_services.transport.config import TlsConfig, TransportConfig
 
 logger = logging.getLogger(__name__)
 

@@ -8,13 +8,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from cli.main import main
 from locnerf.field.grid import GridField, GridFieldConfig
 from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import save_map
 from locnerf.field.map_info import MapInfo
 from locnerf.field.protocol import MapNormalization
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf_cli.main import main
 
 
 @pytest.fixture

@@ -10,8 +10,8 @@ from cryptography import x509
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
-from cli.certs import make_certificates
-from cli.main import main
+from locnerf_cli.certs import make_certificates
+from locnerf_cli.main import main
 
 
 def test_certificates_are_signed_by_the_ca_with_the_role_as_common_name(tmp_path):

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from cli.main import main
 from locnerf.field.map_file import FORMAT_NAME, FORMAT_VERSION, HEADER, MAGIC
+from locnerf_cli.main import main
 
 REQUIRED_KEYS = {"success_rate", "median_translation_error", "median_rotation_error_deg", "mean_seconds_per_trial", "forward_passes"}
 

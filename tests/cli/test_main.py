@@ -11,11 +11,11 @@ import sys
 
 import pytest
 
-import cli.certs
-from cli.main import main
+import locnerf_cli.certs
 from locnerf.errors import LocnerfInputError
+from locnerf_cli.main import main
 
-HEAVY_PACKAGES = {"torch", "zenoh", "services", "matplotlib"}
+HEAVY_PACKAGES = {"torch", "zenoh", "locnerf_services", "matplotlib"}
 
 
 def run_python(code: str) -> str:
@@ -47,7 +47,7 @@ def test_an_input_error_is_one_line_and_its_traceback_shows_at_vv(caplog, monkey
     def refuse(_: argparse.Namespace) -> int:
         raise LocnerfInputError("--days 0: expected >= 1")
 
-    monkeypatch.setattr(cli.certs, "run", refuse)
+    monkeypatch.setattr(locnerf_cli.certs, "run", refuse)
     assert main(["certs"]) == 2
     assert caplog.records[-1].getMessage() == "--days 0: expected >= 1" and not caplog.records[-1].exc_info
     caplog.clear()
@@ -59,6 +59,6 @@ def test_a_bug_keeps_its_traceback(monkeypatch):
     def broken(_: argparse.Namespace) -> int:
         raise ValueError("internal: shapes (3,) and (4,) do not broadcast")
 
-    monkeypatch.setattr(cli.certs, "run", broken)
+    monkeypatch.setattr(locnerf_cli.certs, "run", broken)
     with pytest.raises(ValueError, match="do not broadcast"):
         main(["certs"])

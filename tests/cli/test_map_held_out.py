@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import torch
 
-from cli.main import main
 from locnerf.field.map_file import read_map_archive
 from locnerf.train import training_views
+from locnerf_cli.main import main
 
 FRAMES = 16  # a nerfstudio transforms.json holds out every 8th frame: 0 and 8
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from cli.main import build_parser
-from cli.send import _command
 from locnerf.messages.schemas import InitialPoseCommand
+from locnerf_cli.main import build_parser
+from locnerf_cli.send import _command
 
 POSE = ["1", "0", "0", "-1.5e-05", "0", "1", "0", "-2.", "0", "0", "1", "-.25", "0", "0", "0", "1"]
 

@@ -20,13 +20,13 @@ from typing import Any
 import pytest
 import torch
 
-from cli.main import main
 from locnerf.data import read_dataset
 from locnerf.data.seven_scenes import depth_points
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.map_file import load_map, save_map
 from locnerf.field.surface_distance import SurfaceDistanceConfig
 from locnerf.train import BuildConfig, build_map, psnr
+from locnerf_cli.main import main
 from tests.conftest import REPO_ROOT, SHARED_DATA
 
 KITCHEN = SHARED_DATA / "7scenes_redkitchen"

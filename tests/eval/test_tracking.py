@@ -8,7 +8,6 @@ import logging
 import pytest
 import torch
 
-from cli.main import main
 from locnerf.config import preset
 from locnerf.eval.tracking import (
     ConvergenceConfig,
@@ -26,6 +25,7 @@ from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld, WorldConfig
+from locnerf_cli.main import main
 
 
 def record_from(translation: list[float], rotation: list[float], rate: float = 10.0, kidnap_tick: int | None = None) -> TrackingRecord:

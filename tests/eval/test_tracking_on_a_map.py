@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from cli.main import main
 from locnerf.data import read_dataset
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.map_file import save_map
 from locnerf.train import BuildConfig, build_map
+from locnerf_cli.main import main
 from tests.conftest import REPO_ROOT, SHARED_DATA
 
 LEGO = SHARED_DATA / "nerf_synthetic" / "lego"

@@ -15,8 +15,8 @@ import pytest
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, PoseStamped, UpdateResult
-from services.local_hub import LocalHub
-from services.supervisor import Supervisor
+from locnerf_services.local_hub import LocalHub
+from locnerf_services.supervisor import Supervisor
 from tests.services.helpers import wait_until
 
 ROBOT = "itest"
@@ -82,7 +82,7 @@ class Stack:
 
     def start(self, name: str, *arguments: str, environment: dict[str, str] | None = None) -> subprocess.Popen:
         """``locnerf -v <arguments>`` as ``name``."""
-        return self.supervisor.start(name, [sys.executable, "-m", "cli.main", "-v", *arguments], environment)
+        return self.supervisor.start(name, [sys.executable, "-m", "locnerf_cli.main", "-v", *arguments], environment)
 
     def kill(self, name: str) -> None:
         self.supervisor.kill(name)

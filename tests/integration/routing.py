@@ -6,8 +6,8 @@ import json
 import time
 from pathlib import Path
 
-from services.transport import TransportConfig, open_bus
-from services.transport.config import ENV_TLS, TlsConfig
+from locnerf_services.transport import TransportConfig, open_bus
+from locnerf_services.transport.config import ENV_TLS, TlsConfig
 from tests.integration.conftest import REPO, Stack
 
 PLAIN = REPO / "deploy/zenoh/router.json5"

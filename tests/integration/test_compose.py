@@ -20,7 +20,7 @@ import pytest
 import zenoh
 from ruamel.yaml import YAML
 
-from cli.certs import make_certificates
+from locnerf_cli.certs import make_certificates
 from tests.integration.conftest import REPO, Observer, Stack, wait_for, watch
 from tests.integration.routing import SECURE, open_client, start_router, tls_for
 from tests.services.helpers import free_port
@@ -131,9 +131,9 @@ def test_compose_tls_override_services_reach_each_other_through_the_secure_route
 
 
 def test_ros2_override_is_valid_and_runs_the_filter_with_ros2_and_no_synthetic_ingest():
-    from services.filter_loop.__main__ import FilterProcessConfig
-    from services.runtime import load_service_config
-    from services.sensor_ingest.__main__ import IngestConfig
+    from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+    from locnerf_services.runtime import load_service_config
+    from locnerf_services.sensor_ingest.__main__ import IngestConfig
 
     override = REPO / "deploy/compose.ros2.yml"
     checker = Path(sys.executable).with_name("check-jsonschema")

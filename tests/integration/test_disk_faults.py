@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.filter_loop.service import FilterLoopConfig
-from services.supervisor import write_config
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.filter_loop.service import FilterLoopConfig
+from locnerf_services.supervisor import write_config
 from tests.integration.conftest import ROBOT, wait_for
 
 ODOMETRY_PERIOD = 1 / 15

@@ -35,7 +35,7 @@ def test_live_tracking_in_the_world_reports_every_key_and_tracks(tmp_path):
     command = [
         sys.executable,
         "-m",
-        "cli.main",
+        "locnerf_cli.main",
         "eval",
         "tracking",
         "--map",
@@ -78,7 +78,7 @@ def test_live_tracking_in_the_world_reports_every_key_and_tracks(tmp_path):
 def test_live_run_the_scenario_cannot_give_is_refused_before_any_service_starts(tmp_path):
     """A kidnapping after the end of the run is refused by the command itself, naming the value,
     instead of by the ingest process after the services have started."""
-    command = [sys.executable, "-m", "cli.main", "eval", "tracking", "--map", "world", "--sequence", "world", "--live"]
+    command = [sys.executable, "-m", "locnerf_cli.main", "eval", "tracking", "--map", "world", "--sequence", "world", "--live"]
     command += ["--duration", "5", "--kidnap-at", "8", "--device", "cpu", "--json", "--logs", str(tmp_path)]
     finished = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert finished.returncode != 0
@@ -94,7 +94,7 @@ def test_live_reprojection_and_repeated_updates_track_in_the_world(tmp_path):
     up to 10 Hz when every repeat runs), and it tracks within 0.15 map units and 5° median."""
     config = tmp_path / "warp.toml"
     config.write_text('preset = "tracking"\n\n[measurement.warp]\nmax_spread = 0.05\npixels = 256\nstride = 2\n')
-    command = [sys.executable, "-m", "cli.main", "eval", "tracking", "--map", "world", "--sequence", "world", "--live", "--duration", "15"]
+    command = [sys.executable, "-m", "locnerf_cli.main", "eval", "tracking", "--map", "world", "--sequence", "world", "--live", "--duration", "15"]
     command += ["--image-rate", "5", "--updates-per-image", "2", "--config", str(config), "--device", "cpu", "--seed", "0", "--json", "--logs", str(tmp_path)]
     finished = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert finished.returncode == 0, finished.stderr[-3000:]

@@ -13,9 +13,9 @@ import os
 import signal
 import time
 
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.filter_loop.service import FilterLoopConfig
-from services.supervisor import write_config
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.filter_loop.service import FilterLoopConfig
+from locnerf_services.supervisor import write_config
 from tests.integration.conftest import ROBOT, Observer, Stack, wait_for, watch
 from tests.integration.fault_report import poses_lost, report
 from tests.integration.routing import client_environment, open_client, start_router

@@ -17,7 +17,7 @@ from tests.integration.conftest import REPO
 
 
 def test_fuzz_every_subscribed_key(tmp_path):
-    command = [sys.executable, "-m", "cli.main", "fuzz", "--payloads", "200", "--seed", "1", "--out", str(tmp_path), "--json"]
+    command = [sys.executable, "-m", "locnerf_cli.main", "fuzz", "--payloads", "200", "--seed", "1", "--out", str(tmp_path), "--json"]
     finished = subprocess.run(command, capture_output=True, text=True, timeout=400, cwd=REPO)
     report = json.loads(finished.stdout.strip().splitlines()[-1])
     assert [(t["service"], t["key"]) for t in report["targets"]] == [(t.service, t.topic.suffix) for t in TARGETS]

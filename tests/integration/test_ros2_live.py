@@ -31,14 +31,14 @@ from locnerf.ros2.types import (
 )
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.filter_loop.service import FilterLoopConfig
-from services.ros2.config import Ros2Config
-from services.ros2.node import Ros2Node
-from services.sensor_ingest.service import Pacer
-from services.sensor_ingest.world_source import WorldSourceConfig, world_events
-from services.supervisor import write_config
-from services.transport import TransportConfig
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.filter_loop.service import FilterLoopConfig
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.ros2.node import Ros2Node
+from locnerf_services.sensor_ingest.service import Pacer
+from locnerf_services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from locnerf_services.supervisor import write_config
+from locnerf_services.transport import TransportConfig
 from tests.integration.conftest import ROBOT, wait_for
 from tests.ros2 import messages
 from tests.ros2.rmw_client import RmwServiceClient

@@ -14,12 +14,12 @@ import time
 
 import pytest
 
-from cli.certs import make_certificates
 from locnerf.messages import keys
 from locnerf.messages.codec import encode
 from locnerf.messages.schemas import GlobalLocalizationCommand
-from services.transport import TransportConfig, open_bus
-from services.transport.config import TlsConfig
+from locnerf_cli.certs import make_certificates
+from locnerf_services.transport import TransportConfig, open_bus
+from locnerf_services.transport.config import TlsConfig
 from tests.integration.conftest import ROBOT, wait_for, watch
 from tests.integration.routing import client_environment, open_client, start_router, tls_for
 from tests.services.helpers import free_port

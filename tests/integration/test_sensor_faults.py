@@ -21,11 +21,11 @@ from locnerf.messages.codec import encode
 from locnerf.messages.schemas import InitialPoseCommand
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.filter_loop.service import FilterLoopConfig
-from services.sensor_ingest.service import Pacer, event_message
-from services.sensor_ingest.world_source import WorldSourceConfig, world_events
-from services.supervisor import write_config
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.filter_loop.service import FilterLoopConfig
+from locnerf_services.sensor_ingest.service import Pacer, event_message
+from locnerf_services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from locnerf_services.supervisor import write_config
 from tests.integration.conftest import ROBOT, wait_for
 from tests.integration.fault_report import covariance_trace, poses_lost, report
 

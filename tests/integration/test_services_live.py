@@ -17,9 +17,9 @@ import torch
 
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.messages import keys
-from services.filter_loop.__main__ import FilterProcessConfig
-from services.filter_loop.service import FilterLoopConfig
-from services.supervisor import write_config
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig
+from locnerf_services.filter_loop.service import FilterLoopConfig
+from locnerf_services.supervisor import write_config
 from tests.integration.conftest import REPO, ROBOT, wait_for
 from tests.integration.fault_report import covariance_trace, poses_lost, report
 
@@ -141,7 +141,7 @@ def test_send_and_echo_commands(hub, tmp_path):
     stack, observer, _ = hub
     start_services(stack, ("wa",), filter_config(tmp_path))
     wait_for(lambda: len(errors(observer, observer.poses[-1:])) == 1, 120, "a pose with ground truth", stack)
-    cli = [sys.executable, "-m", "cli.main"]
+    cli = [sys.executable, "-m", "locnerf_cli.main"]
     connect = ["--robot-id", ROBOT, "--connect", stack.endpoint]
     echo = subprocess.run(cli + ["echo", "pose", "--count", "6", "--timeout", "60", *connect], capture_output=True, text=True, timeout=120, cwd=REPO)
     lines = [line for line in echo.stdout.splitlines() if "xyz=" in line]

@@ -23,7 +23,7 @@ def test_up_runs_everything_and_prints_a_summary(tmp_path):
     command = [
         sys.executable,
         "-m",
-        "cli.main",
+        "locnerf_cli.main",
         "up",
         "--until-updates",
         str(UPDATES),

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from cli.bench_table import BenchTable
-from cli.main import build_parser, main
+from locnerf_cli.bench_table import BenchTable
+from locnerf_cli.main import build_parser, main
 
 
 def test_every_filter_target_prints_one_json_line(capsys):

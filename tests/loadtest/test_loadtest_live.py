@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from cli.loadtest import TABLE_ROWS, format_table
+from locnerf_cli.loadtest import TABLE_ROWS, format_table
 from tests.loadtest.run_loadtest import run_loadtest
 
 ISSUE_KEYS = ("update_hz", "update_latency_p99_ms", "pose_rate_hz", "pose_jitter_p99_ms", "dropped_frames", "lost_messages")

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from locnerf.render.camera import PinholeIntrinsics
-from services.ros2.config import Ros2Config
-from services.ros2.node import Ros2Node
-from services.transport import Bus
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.ros2.node import Ros2Node
+from locnerf_services.transport import Bus
 from tests.ros2 import messages
 
 IMAGE, CAMERA_INFO = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo"

@@ -8,9 +8,9 @@ import time
 
 import zenoh
 
-from services.transport import TransportConfig
-from services.transport.bus import Reply
-from services.transport.zenoh_bus import zenoh_config
+from locnerf_services.transport import TransportConfig
+from locnerf_services.transport.bus import Reply
+from locnerf_services.transport.zenoh_bus import zenoh_config
 
 
 class RmwServiceClient:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from services.runtime import limit_torch_threads
+from locnerf_services.runtime import limit_torch_threads
 
 
 @pytest.fixture(autouse=True, scope="package")

@@ -10,9 +10,9 @@ from locnerf.messages import keys
 from locnerf.messages.codec import decode, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, InitialPoseCommand, Odometry, PoseEstimate, UpdateRequest
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.service import FilterLoop, FilterLoopConfig
-from services.nerf_worker.service import NerfWorker
-from services.sensor_ingest.service import event_message
+from locnerf_services.filter_loop.service import FilterLoop, FilterLoopConfig
+from locnerf_services.nerf_worker.service import NerfWorker
+from locnerf_services.sensor_ingest.service import event_message
 
 ROBOT = "r"
 

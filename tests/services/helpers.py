@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from services.supervisor import free_port
+from locnerf_services.supervisor import free_port
 
 __all__ = ["free_port", "wait_until"]
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from locnerf.render.camera import PinholeIntrinsics
-from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events, capture_stamp, is_live
+from locnerf_services.sensor_ingest.camera_source import CameraSourceConfig, camera_events, capture_stamp, is_live
 
 INTRINSICS = PinholeIntrinsics(fx=30.0, fy=30.0, cx=16.0, cy=12.0, width=32, height=24)
 

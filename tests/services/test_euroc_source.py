@@ -17,8 +17,8 @@ from locnerf.geometry.quaternion import quaternion_to_matrix
 from locnerf.geometry.se3 import pose_inverse
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
 from locnerf.sim.sensors import VioConfig
-from services.sensor_ingest.__main__ import IngestConfig, sensor_events
-from services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events, euroc_T_body_cam
+from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
+from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events, euroc_T_body_cam
 
 QUIET = VioConfig(translation_drift=0.0, yaw_drift_rate=0.0, rotation_noise=0.0, translation_noise=0.0)
 

@@ -11,11 +11,11 @@ from locnerf.messages import keys
 from locnerf.messages.codec import decode, encode, encode_image
 from locnerf.messages.schemas import FilterStatus, ImageHeader, Odometry
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.driver import FilterDriver
-from services.filter_loop.lanes import LaneInbox
-from services.filter_loop.service import FilterLoop, FilterLoopConfig
-from services.filter_loop.timings import ThreadTimings
-from services.transport.memory import MemoryBus
+from locnerf_services.filter_loop.driver import FilterDriver
+from locnerf_services.filter_loop.lanes import LaneInbox
+from locnerf_services.filter_loop.service import FilterLoop, FilterLoopConfig
+from locnerf_services.filter_loop.timings import ThreadTimings
+from locnerf_services.transport.memory import MemoryBus
 
 ROBOT = "r"
 

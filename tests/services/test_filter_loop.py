@@ -20,13 +20,13 @@ from locnerf.messages.codec import SCHEMA_VERSION, decode, encode
 from locnerf.messages.schemas import FilterStatus, GlobalLocalizationCommand, InitialPoseCommand
 from locnerf.sim.events import GroundTruthEvent
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.__main__ import FilterProcessConfig, build_loop
-from services.filter_loop.odometry_history import OdometryHistory
-from services.filter_loop.service import FilterLoopConfig
-from services.filter_loop.state_file import SavedPose
-from services.filter_loop.state_writer import StateWriter
-from services.nerf_worker.service import NerfWorker
-from services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from locnerf_services.filter_loop.__main__ import FilterProcessConfig, build_loop
+from locnerf_services.filter_loop.odometry_history import OdometryHistory
+from locnerf_services.filter_loop.service import FilterLoopConfig
+from locnerf_services.filter_loop.state_file import SavedPose
+from locnerf_services.filter_loop.state_writer import StateWriter
+from locnerf_services.nerf_worker.service import NerfWorker
+from locnerf_services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from tests.services.filter_harness import Harness, image_payload, odometry_payload
 
 

@@ -15,8 +15,8 @@ from locnerf.messages.codec import encode_image
 from locnerf.messages.schemas import DepthHeader, ImageHeader
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.__main__ import localizer_config
-from services.filter_loop.service import FilterLoopConfig
+from locnerf_services.filter_loop.__main__ import localizer_config
+from locnerf_services.filter_loop.service import FilterLoopConfig
 from tests.conftest import REPO_ROOT
 from tests.services.filter_harness import Harness, image_payload, odometry_payload
 

@@ -19,10 +19,10 @@ from locnerf.messages import keys
 from locnerf.messages.codec import decode, encode
 from locnerf.messages.schemas import RefusalReason, ServiceStatus, UpdateRefusal, UpdateRequest, UpdateResult
 from locnerf.sim.world import ProceduralWorld, WorldConfig
-from services.filter_loop.service import FilterLoopConfig
-from services.nerf_worker.__main__ import serve
-from services.nerf_worker.service import NerfWorker
-from services.transport.memory import MemoryBus
+from locnerf_services.filter_loop.service import FilterLoopConfig
+from locnerf_services.nerf_worker.__main__ import serve
+from locnerf_services.nerf_worker.service import NerfWorker
+from locnerf_services.transport.memory import MemoryBus
 from tests.services.filter_harness import ROBOT, Harness, image_payload, odometry_payload
 from tests.services.helpers import wait_until
 
@@ -65,7 +65,7 @@ def _refuse(harness: Harness, worker: NerfWorker, request: UpdateRequest) -> Upd
 
 def test_a_worker_on_another_map_is_left_out_counted_reported_and_logged_once(world, generator, caplog):
     harness = Harness(world)
-    with caplog.at_level(logging.WARNING, logger="services.filter_loop.dispatcher"):
+    with caplog.at_level(logging.WARNING, logger="locnerf_services.filter_loop.dispatcher"):
         harness.add_worker("stranger", map_checksum=OTHER_MAP)
         _start_update(harness, world, generator)
         assert harness.requests == [] and harness.loop.dispatcher.pending == {}, "an update went to a worker on another map"

@@ -8,8 +8,8 @@ import torch
 from locnerf.config import preset
 from locnerf.filter.localizer import Localizer, MergeOutcome
 from locnerf.geometry.se3 import make_pose
-from services.filter_loop.dispatcher import CompletedUpdate
-from services.filter_loop.loop_state import LoopState, LoopStateMachine
+from locnerf_services.filter_loop.dispatcher import CompletedUpdate
+from locnerf_services.filter_loop.loop_state import LoopState, LoopStateMachine
 
 STEP = make_pose(torch.eye(3, dtype=torch.float64), torch.tensor([0.0, 0.0, -0.1], dtype=torch.float64))
 

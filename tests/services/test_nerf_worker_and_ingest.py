@@ -35,13 +35,13 @@ from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, depth_millimetres
 from locnerf.sim.sensors import VioConfig, simulate_odometry
 from locnerf.sim.world import ProceduralWorld
-from services.nerf_worker.service import NerfWorker, RequestError
-from services.rgbd import depth_observation
-from services.sensor_ingest.__main__ import IngestConfig, sensor_events
-from services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
-from services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
-from services.sensor_ingest.service import Pacer, event_message
-from services.sensor_ingest.world_source import WorldSourceConfig, world_events
+from locnerf_services.nerf_worker.service import NerfWorker, RequestError
+from locnerf_services.rgbd import depth_observation
+from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
+from locnerf_services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
+from locnerf_services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
+from locnerf_services.sensor_ingest.service import Pacer, event_message
+from locnerf_services.sensor_ingest.world_source import WorldSourceConfig, world_events
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from services.sensor_ingest.prefetch import PrefetchedEvents
+from locnerf_services.sensor_ingest.prefetch import PrefetchedEvents
 
 
 def test_events_come_out_in_order_and_complete():

@@ -26,12 +26,12 @@ from locnerf.ros2.types import (
     type_hash,
 )
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.driver import FilterDriver
-from services.filter_loop.service import FilterLoop, FilterLoopConfig
-from services.ros2.config import Ros2Config
-from services.ros2.filter_bridge import FilterRos2Bridge
-from services.ros2.node import Ros2Node
-from services.transport.memory import MemoryBus
+from locnerf_services.filter_loop.driver import FilterDriver
+from locnerf_services.filter_loop.service import FilterLoop, FilterLoopConfig
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.ros2.filter_bridge import FilterRos2Bridge
+from locnerf_services.ros2.node import Ros2Node
+from locnerf_services.transport.memory import MemoryBus
 from tests.ros2 import messages
 
 ROBOT = "r"

@@ -10,10 +10,10 @@ import pytest
 from locnerf.messages import keys
 from locnerf.messages.codec import decode_image
 from locnerf.render.camera import PinholeIntrinsics
-from services.ros2.config import Ros2Config
-from services.ros2.node import Ros2Node
-from services.sensor_ingest.ros2_source import Ros2Ingest
-from services.transport.memory import MemoryBus
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.ros2.node import Ros2Node
+from locnerf_services.sensor_ingest.ros2_source import Ros2Ingest
+from locnerf_services.transport.memory import MemoryBus
 from tests.ros2 import messages
 
 ROBOT = "r"

@@ -16,12 +16,12 @@ from locnerf.messages.codec import decode_rgbd
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2.camera_info import rectification_from_camera_info
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.driver import FilterDriver
-from services.filter_loop.service import FilterLoop, FilterLoopConfig
-from services.ros2.config import Ros2Config
-from services.ros2.filter_bridge import FilterRos2Bridge
-from services.sensor_ingest.ros2_source import Ros2Ingest
-from services.transport.memory import MemoryBus
+from locnerf_services.filter_loop.driver import FilterDriver
+from locnerf_services.filter_loop.service import FilterLoop, FilterLoopConfig
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.ros2.filter_bridge import FilterRos2Bridge
+from locnerf_services.sensor_ingest.ros2_source import Ros2Ingest
+from locnerf_services.transport.memory import MemoryBus
 from tests.ros2 import messages
 from tests.ros2.rgbd_camera import RgbdCamera, rgbd_config
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.ros2.depth_pairing import DepthPairing
+from locnerf_services.ros2.depth_pairing import DepthPairing
 
 
 class Clock:

@@ -20,11 +20,11 @@ from locnerf.messages import keys
 from locnerf.messages.codec import decode_rgbd
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.world import ProceduralWorld
-from services.filter_loop.driver import FilterDriver
-from services.filter_loop.service import FilterLoop, FilterLoopConfig
-from services.ros2.filter_bridge import FilterRos2Bridge
-from services.sensor_ingest.ros2_source import Ros2Ingest
-from services.transport import Bus, Inbox, TransportConfig, open_bus
+from locnerf_services.filter_loop.driver import FilterDriver
+from locnerf_services.filter_loop.service import FilterLoop, FilterLoopConfig
+from locnerf_services.ros2.filter_bridge import FilterRos2Bridge
+from locnerf_services.sensor_ingest.ros2_source import Ros2Ingest
+from locnerf_services.transport import Bus, Inbox, TransportConfig, open_bus
 from tests.ros2 import messages
 from tests.ros2.rgbd_camera import RgbdCamera, rgbd_config
 from tests.services.helpers import free_port

@@ -13,11 +13,11 @@ from locnerf.messages.codec import decode, decode_image
 from locnerf.messages.schemas import Odometry
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.ros2.attachment import Attachment
-from services.ros2.config import Ros2Config
-from services.ros2.node import Ros2Node
-from services.sensor_ingest.__main__ import IngestConfig, sensor_events
-from services.sensor_ingest.ros2_source import Ros2Ingest
-from services.transport.memory import MemoryBus
+from locnerf_services.ros2.config import Ros2Config
+from locnerf_services.ros2.node import Ros2Node
+from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
+from locnerf_services.sensor_ingest.ros2_source import Ros2Ingest
+from locnerf_services.transport.memory import MemoryBus
 from tests.ros2 import messages
 
 ROBOT = "r"

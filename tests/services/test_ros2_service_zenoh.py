@@ -6,8 +6,8 @@ from __future__ import annotations
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import data_key
 from locnerf.ros2.types import EMPTY_SERVICE, message_class, serialize
-from services.ros2.node import Ros2Node
-from services.transport import TransportConfig, open_bus
+from locnerf_services.ros2.node import Ros2Node
+from locnerf_services.transport import TransportConfig, open_bus
 from tests.ros2.rmw_client import RmwServiceClient
 from tests.services.helpers import free_port, wait_until
 

@@ -14,8 +14,8 @@ from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld
-from services.sensor_ingest.__main__ import IngestConfig, sensor_events
-from services.sensor_ingest.scenario_source import ScenarioSourceConfig
+from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
+from locnerf_services.sensor_ingest.scenario_source import ScenarioSourceConfig
 
 VIO = VioConfig(translation_drift=0.02, translation_noise=3e-3)
 

@@ -12,11 +12,11 @@ import pytest
 from pydantic import BaseModel, ConfigDict
 
 from locnerf.errors import ConfigError
-from services.nerf_worker.__main__ import WorkerConfig
-from services.runtime import ENV_LOG_LEVEL, load_service_config, log_level_from_environment
-from services.sensor_ingest.__main__ import IngestConfig
-from services.supervisor import Supervisor, config_toml, loopback_environment, service_command, write_config
-from services.transport import TransportConfig
+from locnerf_services.nerf_worker.__main__ import WorkerConfig
+from locnerf_services.runtime import ENV_LOG_LEVEL, load_service_config, log_level_from_environment
+from locnerf_services.sensor_ingest.__main__ import IngestConfig
+from locnerf_services.supervisor import Supervisor, config_toml, loopback_environment, service_command, write_config
+from locnerf_services.transport import TransportConfig
 from tests.services.helpers import wait_until
 
 # A child that writes a line when SIGTERM arrives, then exits 3.
@@ -58,7 +58,7 @@ def test_a_none_that_is_not_the_default_is_refused():
 
 
 def test_commands_and_environment():
-    assert service_command("filter", Path("f.toml")) == [sys.executable, "-m", "services.filter_loop", "--config", "f.toml"]
+    assert service_command("filter", Path("f.toml")) == [sys.executable, "-m", "locnerf_services.filter_loop", "--config", "f.toml"]
     with pytest.raises(ValueError, match="service 'mapper': expected one of"):
         service_command("mapper", Path("f.toml"))
     environment = loopback_environment("tcp/127.0.0.1:5", {"HOME": "/h"})

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from services.transport import Inbox, LatestSlot, TransportConfig, open_bus
-from services.transport.memory import MemoryBus, key_matches
+from locnerf_services.transport import Inbox, LatestSlot, TransportConfig, open_bus
+from locnerf_services.transport.memory import MemoryBus, key_matches
 from tests.ros2.rmw_client import RmwServiceClient
 from tests.services.helpers import free_port, wait_until
 
@@ -133,7 +133,7 @@ def test_zenoh_bus_on_loopback_carries_attachments_and_answers_queries():
 
 @pytest.fixture(scope="module")
 def certificates(tmp_path_factory):
-    from cli.certs import make_certificates
+    from locnerf_cli.certs import make_certificates
 
     folder = tmp_path_factory.mktemp("certs")
     make_certificates(folder, roles=("filter",))
@@ -143,7 +143,7 @@ def certificates(tmp_path_factory):
 def test_tls_settings_come_from_the_environment_and_map_onto_zenoh_keys(certificates):
     import json
 
-    from services.transport.zenoh_bus import zenoh_config
+    from locnerf_services.transport.zenoh_bus import zenoh_config
 
     environ = {
         "LOCNERF_ZENOH_MODE": "client",
@@ -172,7 +172,7 @@ def test_tls_settings_come_from_the_environment_and_map_onto_zenoh_keys(certific
     ],
 )
 def test_bad_tls_files_are_named_in_the_error(certificates, fields, message):
-    from services.transport.config import TlsConfig
+    from locnerf_services.transport.config import TlsConfig
 
     good = {"root_ca": "ca.pem", "certificate": "filter.pem", "key": "filter-key.pem"}
     paths = {name: (str(certificates / value) if value and not value.startswith("/") else value) for name, value in (good | fields).items()}
