@@ -2,7 +2,8 @@
 
 Environment overrides (used by docker compose and ``locnerf up``): ``LOCNERF_ZENOH_MODE``
 (peer | client), ``LOCNERF_ZENOH_CONNECT`` and ``LOCNERF_ZENOH_LISTEN`` (comma-separated
-endpoints such as ``tcp/127.0.0.1:7447``); TLS: ``LOCNERF_ZENOH_TLS_ROOT_CA``,
+endpoints such as ``tcp/127.0.0.1:7447``), ``LOCNERF_ZENOH_CONNECT_RETRY`` (seconds a client keeps
+retrying a router that is not up yet); TLS: ``LOCNERF_ZENOH_TLS_ROOT_CA``,
 ``LOCNERF_ZENOH_TLS_CERTIFICATE``, ``LOCNERF_ZENOH_TLS_KEY`` (PEM file paths) and
 ``LOCNERF_ZENOH_TLS_MUTUAL`` (``true`` | ``false``), see :class:`TlsConfig` and docs/SECURITY.md.
 """
@@ -20,6 +21,7 @@ from locnerf.errors import ConfigError
 ENV_MODE = "LOCNERF_ZENOH_MODE"
 ENV_CONNECT = "LOCNERF_ZENOH_CONNECT"
 ENV_LISTEN = "LOCNERF_ZENOH_LISTEN"
+ENV_CONNECT_RETRY = "LOCNERF_ZENOH_CONNECT_RETRY"
 ENV_TLS = {
     "root_ca": "LOCNERF_ZENOH_TLS_ROOT_CA",
     "certificate": "LOCNERF_ZENOH_TLS_CERTIFICATE",
@@ -79,6 +81,12 @@ class TransportConfig(BaseModel):
     mode: Literal["peer", "client"] = Field("peer", description="Zenoh mode: peer (embedded default) or client (of a zenohd router).")
     connect: tuple[str, ...] = Field((), description="Endpoints to connect to, e.g. tcp/127.0.0.1:7447 or tcp/zenohd:7447.")
     listen: tuple[str, ...] = Field(("tcp/127.0.0.1:0",), description="Endpoints to listen on (peer mode); port 0 picks a free port, advertised by gossip.")
+    connect_retry: float = Field(
+        0.0,
+        ge=0,
+        description="Client mode: seconds to keep retrying the router when the session cannot reach it, with a backoff of "
+        "0.25 s doubling up to 5 s, each failure logged (0: fail at once). Containers set it: a router may start after its clients.",
+    )
     multicast_scouting: bool = Field(False, description="UDP multicast discovery (off: endpoints are explicit).")
     block_when_congested: bool = Field(
         False,
@@ -104,6 +112,8 @@ class TransportConfig(BaseModel):
         for name, field in ((ENV_CONNECT, "connect"), (ENV_LISTEN, "listen")):
             if name in environ:
                 updates[field] = tuple(e.strip() for e in environ[name].split(",") if e.strip())
+        if environ.get(ENV_CONNECT_RETRY):
+            updates["connect_retry"] = environ[ENV_CONNECT_RETRY]
         tls = _tls_from_environment(self.tls, environ)
         if tls is not None:
             updates["tls"] = tls

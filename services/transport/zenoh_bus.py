@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 
 import zenoh
 
@@ -11,6 +12,36 @@ from locnerf_services.transport.bus import AttachedCallback, LivelinessCallback,
 from locnerf_services.transport.config import TlsConfig, TransportConfig
 
 logger = logging.getLogger(__name__)
+
+RETRY_FIRST, RETRY_LONGEST = 0.25, 5.0  # seconds between tries of an unreachable router: doubling from the first to the longest
+
+
+def open_session(config: TransportConfig) -> zenoh.Session:
+    """``zenoh.open`` of ``config``; in client mode, retried for ``config.connect_retry`` seconds while
+    the router is unreachable (zenoh.ZError), with a doubling backoff and a warning per failure.
+
+    Raises:
+        zenoh.ZError: the last failure, once the retry window has passed (at once with connect_retry 0).
+    """
+    deadline = time.monotonic() + (config.connect_retry if config.mode == "client" else 0.0)
+    delay, attempt = RETRY_FIRST, 1
+    while True:
+        try:
+            session = zenoh.open(zenoh_config(config))
+        except zenoh.ZError as error:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise
+            wait = min(delay, left)
+            logger.warning(
+                "router %s not reachable (try %d: %s); retrying in %.2f s, giving up in %.0f s", ",".join(config.connect), attempt, error, wait, left
+            )
+            time.sleep(wait)
+            delay, attempt = min(2 * delay, RETRY_LONGEST), attempt + 1
+            continue
+        if attempt > 1:
+            logger.info("connected to router %s after %d tries", ",".join(config.connect), attempt)
+        return session
 
 
 def zenoh_config(config: TransportConfig) -> zenoh.Config:
@@ -80,12 +111,12 @@ class ZenohBus:
     """A Zenoh session behind the Bus protocol.
 
     Args:
-        config: mode and endpoints.
+        config: mode, endpoints and how long a client retries an unreachable router.
     """
 
     def __init__(self, config: TransportConfig) -> None:
         self.config = config
-        self._session = zenoh.open(zenoh_config(config))
+        self._session = open_session(config)
         self._publishers: dict[str, zenoh.Publisher] = {}
 
     @property

@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
+import json
+import logging
 import threading
 import time
+from pathlib import Path
 
 import pytest
+import zenoh
 
 from locnerf_services.transport import Inbox, LatestSlot, TransportConfig, open_bus
 from locnerf_services.transport.memory import MemoryBus, key_matches
+from locnerf_services.transport.router import Router, router_config
 from tests.ros2.rmw_client import RmwServiceClient
 from tests.services.helpers import free_port, wait_until
+
+ROUTER_FILE = Path(__file__).resolve().parents[2] / "deploy/zenoh/router.json5"
 
 
 @pytest.mark.parametrize(
@@ -178,3 +185,39 @@ def test_bad_tls_files_are_named_in_the_error(certificates, fields, message):
     paths = {name: (str(certificates / value) if value and not value.startswith("/") else value) for name, value in (good | fields).items()}
     with pytest.raises(ValueError, match=message):
         TlsConfig(**paths)
+
+
+def test_a_client_started_before_its_router_connects_once_the_router_is_up(caplog):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = TransportConfig(mode="client", connect=(endpoint,)).with_environment({"LOCNERF_ZENOH_CONNECT_RETRY": "30"})
+    assert config.connect_retry == 30.0
+    opened: list = []
+    client = threading.Thread(target=lambda: opened.append(open_bus(config)))
+    with caplog.at_level(logging.WARNING, logger="locnerf_services.transport.zenoh_bus"):
+        client.start()
+        wait_until(lambda: caplog.text.count("not reachable") >= 2, 10.0, "two logged failed tries")
+        assert not opened
+        router = Router(router_config(ROUTER_FILE, [("listen/endpoints", json.dumps([endpoint]))]))
+        client.join(30.0)
+    other = open_bus(TransportConfig(mode="client", connect=(endpoint,)))
+    try:
+        assert len(opened) == 1, "the client did not connect within 30 s of the router coming up"
+        got: Inbox[bytes] = Inbox()
+        opened[0].subscribe("t/**", lambda _key, payload: got.put(payload))
+        deadline, received = time.monotonic() + 20.0, None
+        while received is None and time.monotonic() < deadline:
+            other.publish("t/1", b"through the late router")
+            received = got.get(timeout=0.2)
+        assert received == b"through the late router"
+    finally:
+        for bus in (*opened, other):
+            bus.close()
+        router.close()
+
+
+def test_a_client_gives_up_on_an_absent_router_when_its_retry_window_ends():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    started = time.monotonic()
+    with pytest.raises(zenoh.ZError, match="Unable to connect"):
+        open_bus(TransportConfig(mode="client", connect=(endpoint,), connect_retry=1.0))
+    assert 1.0 <= time.monotonic() - started < 10.0
