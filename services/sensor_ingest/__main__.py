@@ -41,7 +41,7 @@ from locnerf_services.sensor_ingest.prefetch import PrefetchedEvents
 from locnerf_services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
 from locnerf_services.sensor_ingest.ros2_source import Ros2Ingest
 from locnerf_services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
-from locnerf_services.sensor_ingest.service import Pacer, event_message
+from locnerf_services.sensor_ingest.service import Pacer, ProgressLog, event_message
 from locnerf_services.sensor_ingest.world_source import WorldSourceConfig, world_events
 from locnerf_services.transport import Bus, Inbox, TransportConfig, open_bus
 
@@ -87,6 +87,7 @@ class IngestConfig(BaseModel):
         "a load test renders its whole stream before the clock starts, so the machine it measures does only the services' work.",
     )
     torch_threads: int = Field(1, ge=1, description="Intra-op threads of torch in this process (1 suits several services per machine).")
+    progress_interval: float = Field(30.0, ge=0, description="Wall seconds between log lines of streaming progress (events, frames, rates; 0: none).")
     transport: TransportConfig = Field(default_factory=TransportConfig, description="Zenoh session settings.")
 
 
@@ -159,6 +160,7 @@ def stream(bus: Bus, config: IngestConfig, stop: threading.Event, status: Status
     """Publish the configured stream; returns the number of events sent (reported by ``status`` every second)."""
     events: Iterable[SensorEvent] = sensor_events(config)
     sent = 0
+    progress = ProgressLog(config.progress_interval)
     with contextlib.ExitStack() as stack:
         if config.prefetch_events:
             prefetched = stack.enter_context(PrefetchedEvents(events, config.prefetch_events, config.prefetch_nice))
@@ -172,6 +174,7 @@ def stream(bus: Bus, config: IngestConfig, stop: threading.Event, status: Status
             bus.publish(*event_message(config.robot_id, event))
             sent += 1
             status.publish_if_due({"events_sent": sent})
+            progress.sent(event)
     return sent
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable, Iterable, Iterator
 
@@ -9,6 +10,8 @@ from locnerf.messages import keys
 from locnerf.messages.codec import encode, encode_image
 from locnerf.messages.schemas import DepthHeader, ImageHeader, Odometry, PoseStamped
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent
+
+logger = logging.getLogger(__name__)
 
 
 def event_message(robot_id: str, event: SensorEvent, camera_frame: str = "camera") -> tuple[str, bytes]:
@@ -58,3 +61,39 @@ class Pacer:
                 if delay > 0:
                     self.sleep(delay)
             yield event
+
+
+class ProgressLog:
+    """A line of progress every ``interval`` wall seconds while events are sent: events and camera
+    frames sent in all, their rates since the previous line, wall seconds streaming and the sensor
+    stamp reached (0: no lines).
+
+    Args:
+        interval: wall seconds between lines. clock: monotonic seconds (injectable for tests).
+    """
+
+    def __init__(self, interval: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.interval, self.clock = interval, clock
+        self.events = self.frames = 0
+        self._start = self._last = clock()
+        self._last_events = self._last_frames = 0
+
+    def sent(self, event: SensorEvent) -> None:
+        """Count ``event`` as sent; log the line when one is due."""
+        self.events += 1
+        self.frames += isinstance(event, ImageEvent)
+        now = self.clock()
+        if self.interval <= 0 or now - self._last < self.interval:
+            return
+        span = now - self._last
+        logger.info(
+            "ingest: %d events sent (%d frames) in %.0f s; last %.0f s: %.1f events/s, %.2f frames/s; sensor time %.1f s",
+            self.events,
+            self.frames,
+            now - self._start,
+            span,
+            (self.events - self._last_events) / span,
+            (self.frames - self._last_frames) / span,
+            event.stamp,
+        )
+        self._last, self._last_events, self._last_frames = now, self.events, self.frames
