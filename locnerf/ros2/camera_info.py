@@ -35,6 +35,7 @@ import numpy as np
 
 from locnerf.messages.codec import DecodeError
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.ros2 import convert
 
 STANDARD_LENGTHS = (4, 5, 8, 12, 14)
 """Coefficient counts of OpenCV's standard (Brown–Conrady, rational, thin prism, tilted) model."""
@@ -181,3 +182,74 @@ def _maps(k: np.ndarray, distortion: np.ndarray, p: np.ndarray, model: str, size
         raise DecodeError(
             "ros2_camera_info", f"OpenCV refused K={k.reshape(-1).tolist()}, D={distortion.tolist()}, P={p.reshape(-1).tolist()}: {error}"
         ) from None
+
+
+class CameraSlot:
+    """The newest camera of one CameraInfo topic, as a :class:`Rectification`. Drivers repeat the
+    CameraInfo with every image: the undistortion maps are rebuilt only when the calibration changes,
+    and a refused CameraInfo leaves the previous camera in place.
+
+    Args:
+        rectified: the images of this camera are already rectified (image_rect).
+    """
+
+    def __init__(self, rectified: bool) -> None:
+        self.rectified = rectified
+        self.camera: Rectification | None = None
+        self._calibration: tuple | None = None
+
+    def update(self, info: object) -> None:
+        """Take ``info`` (sensor_msgs/msg/CameraInfo).
+
+        Raises:
+            DecodeError: as :func:`~locnerf.ros2.camera_info.rectification_from_camera_info`.
+        """
+        roi = info.roi
+        calibration = (
+            info.width,
+            info.height,
+            info.distortion_model,
+            *(tuple(np.asarray(values, dtype=np.float64).tolist()) for values in (info.d, info.k, info.r, info.p)),
+            info.binning_x,
+            info.binning_y,
+            (roi.x_offset, roi.y_offset, roi.width, roi.height, roi.do_rectify),
+        )
+        if calibration != self._calibration:
+            self.camera = rectification_from_camera_info(info, self.rectified)
+            self._calibration = calibration
+
+
+def undistorted_colour(message: object, camera: Rectification | None, compressed: bool, info_topic: str) -> np.ndarray:
+    """A colour sensor_msgs/Image (or CompressedImage when ``compressed``) -> RGB (H, W, 3) uint8 on
+    ``camera``'s pinhole intrinsics (undistorted when the camera has distortion).
+
+    Raises:
+        DecodeError: ``ros2_no_camera_info`` (``camera`` None: no CameraInfo yet on ``info_topic``),
+            ``ros2_encoding``, ``ros2_image_size`` (not the camera's size).
+    """
+    if camera is None:
+        raise DecodeError("ros2_no_camera_info", f"image before any CameraInfo on {info_topic}")
+    intrinsics = camera.intrinsics
+    pixels = convert.pixels_from_compressed(message) if compressed else convert.pixels_from_image(message)
+    if pixels.shape[:2] != (intrinsics.height, intrinsics.width):
+        raise DecodeError("ros2_image_size", f"image {pixels.shape[1]}×{pixels.shape[0]}, camera info {intrinsics.width}×{intrinsics.height}")
+    return camera.colour(pixels)
+
+
+def undistorted_depth(message: object, camera: Rectification | None, info_topic: str, registered: bool) -> np.ndarray:
+    """A depth sensor_msgs/Image -> (H, W) uint16 millimetres on ``camera``'s intrinsics (nearest-neighbour undistortion).
+
+    ``registered``: the depth image is registered to the colour camera (``camera`` is the colour one).
+
+    Raises:
+        DecodeError: ``ros2_no_camera_info`` (no CameraInfo yet on ``info_topic``), ``ros2_depth_encoding``,
+            ``ros2_depth_size`` (data that do not hold the image, or not the camera's size).
+    """
+    if camera is None:
+        raise DecodeError("ros2_no_camera_info", f"depth image before any CameraInfo on {info_topic}")
+    intrinsics = camera.intrinsics
+    millimetres = convert.millimetres_from_depth_image(message)
+    if millimetres.shape != (intrinsics.height, intrinsics.width):
+        described = "the colour camera info (the depth image is registered to it)" if registered else "the depth camera info"
+        raise DecodeError("ros2_depth_size", f"depth image {millimetres.shape[1]}×{millimetres.shape[0]}, {described} {intrinsics.width}×{intrinsics.height}")
+    return camera.depth(millimetres)

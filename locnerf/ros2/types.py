@@ -25,6 +25,14 @@ from locnerf.messages.codec import DecodeError
 
 EMPTY_SERVICE = "std_srvs/srv/Empty"
 
+ODOMETRY = "nav_msgs/msg/Odometry"
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+
 
 SERVICE_EVENT_INFO = "service_msgs/msg/ServiceEventInfo"
 

@@ -35,16 +35,15 @@ from locnerf.messages.stamps import nanoseconds_from_seconds
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
 from locnerf.ros2.naming import check_key
-from locnerf.ros2.types import EMPTY_SERVICE, NAV2_PARTICLE, NAV2_PARTICLE_CLOUD, message_class, serialize
+from locnerf.ros2.types import EMPTY_SERVICE, NAV2_PARTICLE, NAV2_PARTICLE_CLOUD, TF_MESSAGE, message_class, serialize
+from locnerf.ros2.types import POSE_WITH_COVARIANCE_STAMPED as POSE_WITH_COVARIANCE
 from locnerf_services.filter_loop.service import FilterLoop
 from locnerf_services.ros2.config import Ros2Config
 from locnerf_services.ros2.node import Ros2Node
 from locnerf_services.ros2.sensors import Arrive, ImageArrived, Received, Ros2Sensors, open_sample
 from locnerf_services.transport import Bus
 
-POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
-TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 
 class FilterRos2Bridge:

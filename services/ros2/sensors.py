@@ -28,18 +28,13 @@ from locnerf.messages.codec import DecodeError, encode, encode_image
 from locnerf.messages.schemas import DepthHeader, ImageHeader, Matrix, Odometry
 from locnerf.ros2 import convert
 from locnerf.ros2.attachment import Attachment
-from locnerf.ros2.camera_info import Rectification, rectification_from_camera_info
+from locnerf.ros2.camera_info import CameraSlot, undistorted_colour, undistorted_depth
 from locnerf.ros2.naming import check_key
-from locnerf.ros2.types import deserialize
+from locnerf.ros2.types import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, ODOMETRY, deserialize
 from locnerf_services.ros2.config import Ros2Config
 from locnerf_services.ros2.depth_pairing import DepthPairing
 from locnerf_services.ros2.node import Ros2Node
 from locnerf_services.transport import Inbox
-
-ODOMETRY = "nav_msgs/msg/Odometry"
-IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
-CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 
 # (payload, attachment) of a received ROS 2 sample
 Received = tuple[bytes, bytes | None]
@@ -59,41 +54,6 @@ class DepthImage:
 
     header: DepthHeader
     millimetres: np.ndarray
-
-
-class CameraSlot:
-    """The newest camera of one CameraInfo topic, as a :class:`Rectification`. Drivers repeat the
-    CameraInfo with every image: the undistortion maps are rebuilt only when the calibration changes,
-    and a refused CameraInfo leaves the previous camera in place.
-
-    Args:
-        rectified: the images of this camera are already rectified (image_rect).
-    """
-
-    def __init__(self, rectified: bool) -> None:
-        self.rectified = rectified
-        self.camera: Rectification | None = None
-        self._calibration: tuple | None = None
-
-    def update(self, info: object) -> None:
-        """Take ``info`` (sensor_msgs/msg/CameraInfo).
-
-        Raises:
-            DecodeError: as :func:`~locnerf.ros2.camera_info.rectification_from_camera_info`.
-        """
-        roi = info.roi
-        calibration = (
-            info.width,
-            info.height,
-            info.distortion_model,
-            *(tuple(np.asarray(values, dtype=np.float64).tolist()) for values in (info.d, info.k, info.r, info.p)),
-            info.binning_x,
-            info.binning_y,
-            (roi.x_offset, roi.y_offset, roi.width, roi.height, roi.do_rectify),
-        )
-        if calibration != self._calibration:
-            self.camera = rectification_from_camera_info(info, self.rectified)
-            self._calibration = calibration
 
 
 def open_sample(key: str, received: Received, domain_id: int, fq_name: str, ros_type: str) -> object:
@@ -213,18 +173,10 @@ class Ros2Sensors:
         message = self.open("depth", IMAGE, key, received)
         registered = not self.config.depth_camera_info_topic
         camera = (self._camera if registered else self._depth_camera).camera
-        if camera is None:
-            info = self.names["camera_info" if registered else "depth_camera_info"]
-            raise DecodeError("ros2_no_camera_info", f"depth image before any CameraInfo on {info}")
+        millimetres = undistorted_depth(message, camera, self.names["camera_info" if registered else "depth_camera_info"], registered)
         intrinsics = camera.intrinsics
-        millimetres = convert.millimetres_from_depth_image(message)
-        if millimetres.shape != (intrinsics.height, intrinsics.width):
-            described = "the colour camera info (the depth image is registered to it)" if registered else "the depth camera info"
-            raise DecodeError(
-                "ros2_depth_size", f"depth image {millimetres.shape[1]}×{millimetres.shape[0]}, {described} {intrinsics.width}×{intrinsics.height}"
-            )
         header = DepthHeader(width=intrinsics.width, height=intrinsics.height, intrinsics=intrinsics, T_cam_depth=self.T_cam_depth)
-        self.pairing.add_depth(convert.seconds(message.header.stamp), DepthImage(header, camera.depth(millimetres)))
+        self.pairing.add_depth(convert.seconds(message.header.stamp), DepthImage(header, millimetres))
 
     def paired_image(self) -> bytes | None:
         """The waiting colour image as a locnerf image frame (undistorted, RGB, with its depth image when
@@ -238,12 +190,8 @@ class Ros2Sensors:
             return None
         message, depth = released
         camera = self._camera.camera
-        if camera is None:
-            raise DecodeError("ros2_no_camera_info", f"image before any CameraInfo on {self.names['camera_info']}")
+        pixels = undistorted_colour(message, camera, self.image_type == COMPRESSED_IMAGE, self.names["camera_info"])
         intrinsics = camera.intrinsics
-        pixels = convert.pixels_from_image(message) if self.image_type == IMAGE else convert.pixels_from_compressed(message)
-        if pixels.shape[:2] != (intrinsics.height, intrinsics.width):
-            raise DecodeError("ros2_image_size", f"image {pixels.shape[1]}×{pixels.shape[0]}, camera info {intrinsics.width}×{intrinsics.height}")
         header = ImageHeader(
             stamp_ns=convert.nanoseconds(message.header.stamp),
             frame_id=message.header.frame_id,
@@ -253,7 +201,7 @@ class Ros2Sensors:
             intrinsics=intrinsics,
             depth=None if depth is None else depth.header,
         )
-        return encode_image(header, camera.colour(pixels), None if depth is None else depth.millimetres)
+        return encode_image(header, pixels, None if depth is None else depth.millimetres)
 
 
 def _opengl_offset(T_colour_depth_optical: list[list[float]]) -> Matrix:

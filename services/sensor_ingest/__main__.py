@@ -40,6 +40,7 @@ from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc
 from locnerf_services.sensor_ingest.prefetch import PrefetchedEvents
 from locnerf_services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
 from locnerf_services.sensor_ingest.ros2_source import Ros2Ingest
+from locnerf_services.sensor_ingest.rosbag_source import RosbagSourceConfig, rosbag_events
 from locnerf_services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
 from locnerf_services.sensor_ingest.service import Pacer, ProgressLog, event_message
 from locnerf_services.sensor_ingest.world_source import WorldSourceConfig, world_events
@@ -55,13 +56,14 @@ class IngestConfig(BaseModel):
 
     robot_id: str = Field("robot", description="Robot whose sensor keys are published.")
     ingest_id: str = Field("", description="Name of this ingest in its status key (empty: <hostname>-<pid>).")
-    source: Literal["world", "replay", "scenario", "euroc", "camera", "ros2"] = Field(
+    source: Literal["world", "replay", "scenario", "euroc", "camera", "ros2", "rosbag"] = Field(
         "world",
         description="Stream source: the procedural world along a trajectory, the replay of a posed image sequence, "
         "the offline tracking experiment's scenario (its path, images, kidnapping and seeds, as `locnerf eval tracking`), "
         "a EuRoC MAV folder (its stamps kept, odometry synthesised from its ground truth), "
         "a live camera / video file (images only; odometry comes from the robot on sensors/odom), "
-        "or a ROS 2 robot's odometry and camera topics over rmw_zenoh (docs/ROS2.md).",
+        "a ROS 2 robot's odometry and camera topics over rmw_zenoh (docs/ROS2.md), "
+        "or a ROS 2 bag's odometry, camera and ground-truth topics at their stamps (docs/BAGS.md).",
     )
     world: WorldSourceConfig = Field(default_factory=WorldSourceConfig, description="Rates, duration and noise of the world stream.")
     replay: ReplaySourceConfig = Field(default_factory=ReplaySourceConfig, description="Sequence, rates and noise of the replay.")
@@ -70,6 +72,7 @@ class IngestConfig(BaseModel):
     )
     euroc: EurocSourceConfig = Field(default_factory=EurocSourceConfig, description="EuRoC folder, camera, rates and noise.")
     camera: CameraSourceConfig = Field(default_factory=CameraSourceConfig, description="Capture device or video file and its calibration.")
+    rosbag: RosbagSourceConfig = Field(default_factory=RosbagSourceConfig, description="With source = 'rosbag': the bag and its topic names.")
     ros2: Ros2Config = Field(
         default_factory=Ros2Config, description="With source = 'ros2': domain, namespace, sensor topics and frames (enabled and the output fields are unused)."
     )
@@ -114,8 +117,8 @@ def wait_for_workers(bus: Bus, robot_id: str, count: int, timeout: float, stop: 
         subscription.close()
 
 
-def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
-    """The configured source's event stream.
+def sensor_events(config: IngestConfig, bad: BadMessages | None = None) -> Iterator[SensorEvent]:
+    """The configured source's event stream; a bag's bad messages are counted in ``bad`` (None: a new one).
 
     Raises:
         ConfigError: a replay or EuRoC source without a path, a camera without intrinsics or that cannot be opened.
@@ -128,6 +131,8 @@ def sensor_events(config: IngestConfig) -> Iterator[SensorEvent]:
         return camera_events(config.camera)
     if config.source == "scenario":
         return scenario_events(config.scenario, config.seed)
+    if config.source == "rosbag":
+        return rosbag_events(config.rosbag, (bad or BadMessages("sensor_ingest")).record)
     generator = torch.Generator().manual_seed(config.seed)
     if config.source == "euroc":
         if not config.euroc.path:
@@ -158,7 +163,7 @@ def relay_ros2(bus: Bus, config: IngestConfig, stop: threading.Event, status: St
 
 def stream(bus: Bus, config: IngestConfig, stop: threading.Event, status: StatusPublisher) -> int:
     """Publish the configured stream; returns the number of events sent (reported by ``status`` every second)."""
-    events: Iterable[SensorEvent] = sensor_events(config)
+    events: Iterable[SensorEvent] = sensor_events(config, status.bad)
     sent = 0
     progress = ProgressLog(config.progress_interval)
     with contextlib.ExitStack() as stack:
