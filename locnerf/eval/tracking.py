@@ -67,6 +67,8 @@ class TrackingRecord:
         update_ticks: odometry indices at which an update ran.
         kidnap_tick: index of the first stamp after the jump, or None.
         seconds: wall time of the run.
+        estimates: (K, 4, 4) float64 estimated ``T_world_cam`` (map units), for trajectory files; None if not kept.
+        truths: (K, 4, 4) float64 true ``T_world_cam`` (map units) at the same stamps; None if not kept.
     """
 
     stamps: torch.Tensor
@@ -75,6 +77,8 @@ class TrackingRecord:
     update_ticks: list[int]
     kidnap_tick: int | None
     seconds: float
+    estimates: torch.Tensor | None = None
+    truths: torch.Tensor | None = None
 
 
 def start_particles(localizer: Localizer, truth: torch.Tensor, config: StartConfig, up: tuple[float, float, float]) -> None:
@@ -129,12 +133,18 @@ def run_tracking(
     intrinsics = scenario.path.intrinsics
     start_particles(localizer, scenario.truth[0], start, normalization.up)
     image_ticks = set(scenario.image_ticks)
-    translation, rotation, updates = [], [], []
+    valid = [True] * len(scenario.stamps) if scenario.odometry_valid is None else scenario.odometry_valid.tolist()
+    reference = 0 if valid[0] else None  # the last stamp with odometry
+    translation, rotation, updates, estimates = [], [], [], []
     started = time.perf_counter()
     for tick in tqdm(range(len(scenario.stamps)), desc="tracking", disable=not show_progress):
-        if tick > 0:
-            increment = normalization.increment_to_map(relative_pose(camera_odometry[tick - 1], camera_odometry[tick]))
-            localizer.predict(increment.to(localizer.device, localizer.dtype))
+        if tick > 0 and valid[tick]:  # a gap predicts nothing; the next odometry bridges it with the noise of its time
+            if reference is None:
+                localizer.predict()
+            else:
+                increment = normalization.increment_to_map(relative_pose(camera_odometry[reference], camera_odometry[tick]))
+                localizer.predict(increment.to(localizer.device, localizer.dtype), periods=float(tick - reference))
+            reference = tick
         if tick in image_ticks:
             image = scenario.image(tick, image_generator).to(radiance_map.device)
             depth = frame_depth(scenario, tick, normalization.scale) if localizer.config.measurement.depth is not None else None
@@ -146,6 +156,7 @@ def run_tracking(
                 if report.injected:
                     logger.info("t = %.2f s: %d recovery particles injected", float(scenario.stamps[tick]), report.injected)
         estimate = localizer.estimate().pose.double().cpu()
+        estimates.append(estimate)
         translation.append(float(translation_error(estimate, scenario.truth[tick])))
         rotation.append(float(rotation_error_deg(estimate, scenario.truth[tick])))
     return TrackingRecord(
@@ -155,6 +166,8 @@ def run_tracking(
         update_ticks=updates,
         kidnap_tick=scenario.kidnap_tick,
         seconds=time.perf_counter() - started,
+        estimates=torch.stack(estimates),
+        truths=scenario.truth.double(),
     )
 
 

@@ -36,6 +36,7 @@ class LiveObservations:
 
     Attributes:
         odometry: (stamp, arrival) of every odometry message.
+        odometry_poses: its ``T_odom_body`` (4, 4) float64, metres, by stamp.
         truth: true ``T_world_cam`` (4, 4) float64, metric, by stamp.
         poses: (stamp, arrival, ``T_world_cam`` (4, 4) float64 metric) of every published pose.
         updates: arrival of the last shard of every update result, by request id.
@@ -43,6 +44,7 @@ class LiveObservations:
     """
 
     odometry: list[tuple[float, float]] = field(default_factory=list)
+    odometry_poses: dict[float, torch.Tensor] = field(default_factory=dict)
     truth: dict[float, torch.Tensor] = field(default_factory=dict)
     poses: list[tuple[float, float, torch.Tensor]] = field(default_factory=list)
     updates: dict[str, float] = field(default_factory=dict)
@@ -81,6 +83,8 @@ def live_record(observed: LiveObservations, normalization: MapNormalization, kid
         update_ticks=ticks,
         kidnap_tick=kidnap_tick,
         seconds=arrivals[-1] - arrivals[0],
+        estimates=estimates.double(),
+        truths=truths.double(),
     )
 
 

@@ -256,22 +256,27 @@ class Localizer:
         return self.particles
 
     # ----------------------------------------------------------------- prediction
-    def noise_sigma(self) -> torch.Tensor:
-        """(6,) current prediction-noise standard deviations (annealed)."""
-        return self.config.motion.sigma_vector(noise_scale(self.stage, self.config.annealing))
+    def noise_sigma(self, periods: float = 1.0) -> torch.Tensor:
+        """(6,) current prediction-noise standard deviations (annealed) for an increment spanning
+        ``periods`` odometry periods: δ is a random walk, its variance grows with the time bridged,
+        so σ scales by √periods (periods below 1 count as 1: a prediction never adds less than one step's noise)."""
+        return self.config.motion.sigma_vector(noise_scale(self.stage, self.config.annealing) * math.sqrt(max(periods, 1.0)))
 
-    def noise_pivot(self) -> PivotNoise | None:
-        """The current pivot noise (annealed like δ), or None."""
-        return self.config.motion.pivot_noise(noise_scale(self.stage, self.config.annealing))
+    def noise_pivot(self, periods: float = 1.0) -> PivotNoise | None:
+        """The current pivot noise (annealed like δ, widened over ``periods`` like :meth:`noise_sigma`), or None."""
+        return self.config.motion.pivot_noise(noise_scale(self.stage, self.config.annealing) * math.sqrt(max(periods, 1.0)))
 
-    def predict(self, odometry: torch.Tensor | None = None) -> None:
-        """Eq. 4 for every particle: move by the odometry increment ``T_prev_curr`` (4, 4), add noise."""
+    def predict(self, odometry: torch.Tensor | None = None, periods: float = 1.0) -> None:
+        """Eq. 4 for every particle: move by the odometry increment ``T_prev_curr`` (4, 4), add noise
+        for ``periods`` odometry periods (more than 1 where the odometry had a gap)."""
         particles = self._require_particles()
         if odometry is not None:
             validate_poses(odometry, name="odometry increment")
             if odometry.ndim != 2:
                 raise ValueError(f"odometry increment: expected shape (4, 4), got {tuple(odometry.shape)}")
-        particles.poses = propagate_poses(particles.poses, odometry, self.noise_sigma(), self.generator, self.noise_pivot())
+        if not math.isfinite(periods) or periods <= 0:
+            raise ValueError(f"prediction over {periods} odometry periods: expected a positive finite number")
+        particles.poses = propagate_poses(particles.poses, odometry, self.noise_sigma(periods), self.generator, self.noise_pivot(periods))
 
     # ----------------------------------------------------------------- delayed update
     def _protect_convergence(self, particles: ParticleSet) -> None:

@@ -30,6 +30,7 @@ from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.geometry import pose_inverse, relative_pose
+from locnerf.odometry.tracks import OdometryTrack
 from locnerf.sim.paths import CameraPath
 from locnerf.sim.sensors import VioConfig, simulate_odometry
 
@@ -61,6 +62,9 @@ class TrackingScenario:
         kidnap_tick: index of the first pose after the jump, or None.
         path_times: (K,) float64 time along the path at each stamp (jumps at the kidnapping).
         path: where the poses and images come from.
+        odometry_valid: (K,) bool: stamps with odometry (real odometry has gaps); None: every stamp.
+        odometry_label: where the odometry came from: ``synthetic``, or a real track's label
+            (:class:`~locnerf.odometry.tracks.OdometryTrack`).
     """
 
     stamps: torch.Tensor
@@ -70,6 +74,8 @@ class TrackingScenario:
     kidnap_tick: int | None
     path_times: torch.Tensor
     path: CameraPath
+    odometry_valid: torch.Tensor | None = None
+    odometry_label: str = "synthetic"
 
     def image(self, tick: int, generator: torch.Generator) -> torch.Tensor:
         """The image (H, W, 3) float32 in [0, 1] taken at index ``tick``."""
@@ -113,6 +119,11 @@ def _timeline(path: CameraPath, config: ScenarioConfig) -> _Timeline:
     return _Timeline(stamps, path_times, image_ticks, kidnap_tick)
 
 
+def run_stamps(path: CameraPath, config: ScenarioConfig) -> torch.Tensor:
+    """(K,) float64 odometry stamps of the whole run (what a real odometry track is sampled on)."""
+    return _timeline(path, config).stamps
+
+
 def check_timeline(path: CameraPath, config: ScenarioConfig) -> None:
     """Refuse now what simulating the run would refuse (rates, kidnapping time), e.g. before
     services that replay it are started.
@@ -124,24 +135,33 @@ def check_timeline(path: CameraPath, config: ScenarioConfig) -> None:
 
 
 def scenario_segments(
-    path: CameraPath, config: ScenarioConfig, normalization: MapNormalization, segment_ticks: int = SEGMENT_TICKS
+    path: CameraPath, config: ScenarioConfig, normalization: MapNormalization, segment_ticks: int = SEGMENT_TICKS, track: OdometryTrack | None = None
 ) -> Iterator[TrackingScenario]:
     """The run as consecutive scenarios of at most ``segment_ticks`` stamps, simulated as they are asked for.
 
     Indices inside a segment (``image_ticks``, ``kidnap_tick``) count from its first stamp; the
-    odometry and its noise draws continue from one segment to the next.
+    odometry and its noise draws continue from one segment to the next. With a real odometry
+    ``track`` (on :func:`run_stamps`), its poses (the camera's, carried to the path's body) and its
+    gaps replace the simulated odometry; ``config.vio`` then only sets the rate.
 
     Raises:
         ValueError: at once, not on iteration: an image rate above the odometry rate, a kidnapping
-            outside the run, ``segment_ticks`` < 1.
+            outside the run, ``segment_ticks`` < 1, a track of another length or with a kidnapping
+            (recorded odometry cannot be made blind to a jump of the camera).
     """
     if segment_ticks < 1:
         raise ValueError(f"segment_ticks {segment_ticks}: expected at least 1 stamp per segment")
-    return _simulate_segments(path, config, normalization, _timeline(path, config), segment_ticks)
+    timeline = _timeline(path, config)
+    if track is not None and (len(track.poses) != len(timeline.stamps) or timeline.kidnap_tick is not None):
+        raise LocnerfInputError(
+            f"odometry {track.label}: {len(track.poses)} stamps for a run of {len(timeline.stamps)}"
+            f"{' with a kidnapping' if timeline.kidnap_tick is not None else ''}; expected one pose or gap per stamp and no kidnapping"
+        )
+    return _simulate_segments(path, config, normalization, timeline, segment_ticks, track)
 
 
 def _simulate_segments(
-    path: CameraPath, config: ScenarioConfig, normalization: MapNormalization, timeline: _Timeline, segment_ticks: int
+    path: CameraPath, config: ScenarioConfig, normalization: MapNormalization, timeline: _Timeline, segment_ticks: int, track: OdometryTrack | None
 ) -> Iterator[TrackingScenario]:
     """The segments of :func:`scenario_segments`, each simulated when it is asked for."""
     kidnap_tick = timeline.kidnap_tick
@@ -163,7 +183,9 @@ def _simulate_segments(
                 kidnap_correction = before @ step @ pose_inverse(metric[jump])
             perceived[jump:] = kidnap_correction @ metric[jump:]
         body = perceived @ to_body
-        if last is None:
+        if track is not None:
+            odometry = track.poses[begin:end] @ to_body
+        elif last is None:
             odometry = simulate_odometry(body, config.vio, generator)
         else:
             odometry = simulate_odometry(torch.cat([last[1][None], body]), config.vio, generator, start=last[2])[1:]
@@ -177,12 +199,14 @@ def _simulate_segments(
             kidnap_tick=kidnap_tick - begin if kidnap_tick is not None and begin <= kidnap_tick < end else None,
             path_times=timeline.path_times[begin:end],
             path=path,
+            odometry_valid=None if track is None else track.valid[begin:end],
+            odometry_label="synthetic" if track is None else track.label,
         )
 
 
-def build_scenario(path: CameraPath, config: ScenarioConfig, normalization: MapNormalization) -> TrackingScenario:
+def build_scenario(path: CameraPath, config: ScenarioConfig, normalization: MapNormalization, track: OdometryTrack | None = None) -> TrackingScenario:
     """The whole run at once: its segments joined (see :func:`scenario_segments`)."""
-    segments = list(scenario_segments(path, config, normalization))
+    segments = list(scenario_segments(path, config, normalization, track=track))
     offsets = [0]
     for segment in segments[:-1]:
         offsets.append(offsets[-1] + len(segment.stamps))
@@ -195,4 +219,6 @@ def build_scenario(path: CameraPath, config: ScenarioConfig, normalization: MapN
         kidnap_tick=kidnaps[0] if kidnaps else None,
         path_times=torch.cat([s.path_times for s in segments]),
         path=path,
+        odometry_valid=None if track is None else track.valid,
+        odometry_label="synthetic" if track is None else track.label,
     )

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from locnerf.field.protocol import MapNormalization
+from locnerf.odometry.tracks import OdometryTrack
 from locnerf.sim.events import DepthFrame, GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent, depth_millimetres, rgb8
 from locnerf.sim.paths import CameraPath
 from locnerf.sim.scenario import ScenarioConfig, TrackingScenario, scenario_segments
@@ -38,9 +39,11 @@ def scenario_events(segments: Iterable[TrackingScenario], image_generator: torch
     images_sent = 0
     for segment in segments:
         image_ticks = set(segment.image_ticks)
+        valid = segment.odometry_valid.tolist() if segment.odometry_valid is not None else None
         for tick, stamp in enumerate(segment.stamps.tolist()):
             yield GroundTruthEvent(stamp, segment.truth[tick])
-            yield OdometryEvent(stamp, segment.odometry[tick])
+            if valid is None or valid[tick]:  # a gap of real odometry sends nothing
+                yield OdometryEvent(stamp, segment.odometry[tick])
             if tick not in image_ticks:
                 continue
             if distinct_frames and len(rendered) == distinct_frames:
@@ -59,7 +62,8 @@ def _depth_frame(segment: TrackingScenario, tick: int) -> DepthFrame | None:
     return None if depth is None else DepthFrame(depth_millimetres(depth.depth), depth.intrinsics, depth.T_cam_depth)
 
 
-def simulated_events(path: CameraPath, config: ScenarioConfig, distinct_frames: int = 0) -> Iterator[SensorEvent]:
-    """The sensor events of the run along ``path`` (see :func:`scenario_events`), poses in the metric world frame."""
-    segments = scenario_segments(path, config, MapNormalization())
+def simulated_events(path: CameraPath, config: ScenarioConfig, distinct_frames: int = 0, track: OdometryTrack | None = None) -> Iterator[SensorEvent]:
+    """The sensor events of the run along ``path`` (see :func:`scenario_events`), poses in the metric world frame;
+    with ``track``, its real odometry (and gaps) instead of the simulated one."""
+    segments = scenario_segments(path, config, MapNormalization(), track=track)
     return scenario_events(segments, torch.Generator().manual_seed(config.seed + 1), distinct_frames)

@@ -52,6 +52,7 @@ class LoopStateMachine:
         self.state = LoopState.WAITING
         self.estimate: ParticleEstimate | None = None
         self._pending_increment: torch.Tensor | None = None
+        self._pending_periods = 1.0
 
     @property
     def running(self) -> bool:
@@ -62,7 +63,7 @@ class LoopStateMachine:
         """The localizer with every published odometry applied to its particles: a pending prediction
         (eq. 4 on every particle) runs now (PREDICTION_PENDING -> SETTLED)."""
         if self.state is LoopState.PREDICTION_PENDING:
-            self._localizer.predict(self._pending_increment)
+            self._localizer.predict(self._pending_increment, self._pending_periods)
             self._pending_increment = None
             self.state = LoopState.SETTLED
         return self._localizer
@@ -82,10 +83,10 @@ class LoopStateMachine:
         self.estimate = localizer.estimate()
         self.state = LoopState.SETTLED
 
-    def carry(self, increment: torch.Tensor | None) -> ParticleEstimate:
+    def carry(self, increment: torch.Tensor | None, periods: float = 1.0) -> ParticleEstimate:
         """The estimate carried by an odometry increment ``T_prev_curr`` (4, 4) in map units (None:
-        noise only), for the pose of that odometry; the particles' prediction by it is deferred
-        (-> PREDICTION_PENDING).
+        noise only) spanning ``periods`` odometry periods (> 1 across a gap: wider noise), for the
+        pose of that odometry; the particles' prediction by it is deferred (-> PREDICTION_PENDING).
 
         Raises:
             RuntimeError: in state WAITING (no particles, no estimate to carry).
@@ -94,8 +95,9 @@ class LoopStateMachine:
             raise RuntimeError("cannot carry the estimate: the filter has no particles yet (state WAITING)")
         localizer = self.settled()
         self.refresh_estimate()
-        self.estimate = carry_estimate(self.estimate, increment, localizer.noise_sigma(), localizer.noise_pivot())
+        self.estimate = carry_estimate(self.estimate, increment, localizer.noise_sigma(periods), localizer.noise_pivot(periods))
         self._pending_increment = increment
+        self._pending_periods = periods
         self.state = LoopState.PREDICTION_PENDING
         return self.estimate
 

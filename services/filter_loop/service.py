@@ -57,6 +57,8 @@ logger = logging.getLogger(__name__)
 
 Outgoing = list[tuple[str, bytes]]
 """Messages to publish: (key expression, payload bytes) pairs."""
+GAP_PERIODS = 1.5
+"""An odometry increment spanning more than this many nominal periods bridged a gap (counted as odometry_gaps)."""
 
 
 class FilterLoopConfig(BaseModel):
@@ -88,6 +90,12 @@ class FilterLoopConfig(BaseModel):
         " (cheap re-projection updates leave the workers idle between images otherwise).",
     )
     odometry_horizon: float = Field(5.0, gt=0, description="Seconds of odometry kept to carry particles to an image stamp.")
+    odometry_rate: float = Field(
+        15.0,
+        gt=0,
+        description="Nominal odometry rate, Hz: the prediction noise is per period of it. An increment across a gap of the odometry "
+        "(a frame the odometry failed on) spans Δt > 1/rate and gets the noise of that time, σ·√(Δt·rate) (odometry_gaps counts them).",
+    )
     odometry_resync: int = Field(
         3,
         ge=1,
@@ -157,6 +165,7 @@ class FilterLoop:
         self.images_without_depth = 0
         self.inbox_dropped = 0
         self.odometry_restarts = 0
+        self.odometry_gaps = 0
         self.merge_failures = 0
         self._stepped_back: list[float] = []
         self._odometry_stamp_ns: int | None = None
@@ -224,7 +233,11 @@ class FilterLoop:
             if self._odometry_clock_restarted(message.stamp):
                 self.history.clear()
                 self.odometry_restarts += 1
+            previous = self.history.latest_stamp
             increment = self.history.append(message.stamp, pose)
+            periods = 1.0 if previous is None else (message.stamp - previous) * self.config.odometry_rate
+            if periods > GAP_PERIODS:
+                self.odometry_gaps += 1
             self._odometry_stamp_ns = message.stamp_ns
             self._stepped_back.clear()
         except DecodeError as error:
@@ -240,7 +253,7 @@ class FilterLoop:
         self.rates["odometry"].tick()
         if not self.running:
             return []
-        estimate = self.state_machine.carry(self.frames.map_increment(increment))
+        estimate = self.state_machine.carry(self.frames.map_increment(increment), periods)
         return [self._pose_message(message, estimate)]
 
     @property
@@ -533,6 +546,7 @@ class FilterLoop:
             "images_odometry_wait_expired": self.held_images.expired,
             "bad_messages": self.bad.total,
             "odometry_restarts": self.odometry_restarts,
+            "odometry_gaps": self.odometry_gaps,
             "inbox_dropped": self.inbox_dropped,
             "images_received": self.images_received,
             "images_without_depth": self.images_without_depth,

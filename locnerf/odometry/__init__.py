@@ -1,0 +1,1 @@
+"""Real odometry: OpenCV RGB-D odometry of camera frames, and recorded trajectories on a run's stamps."""

@@ -1,0 +1,85 @@
+"""The real odometry of a replayed sequence: which source, built on the run's stamps.
+
+``synthetic`` leaves the simulator's odometry (:mod:`locnerf.sim.sensors`) in place; ``rgbd``
+computes OpenCV RGB-D odometry (:mod:`locnerf.odometry.rgbd`) on the sequence's own frames, read
+at the odometry's working size (:data:`ODOMETRY_DOWNSCALE`: 320×240 of a 640×480 Kinect) and fed
+in the order and at the stamps the replay shows them; anything else names a trajectory file (TUM or
+EuRoC) matched to the run's stamps (:func:`locnerf.odometry.tracks.file_track`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from locnerf.errors import LocnerfInputError
+from locnerf.geometry.validation import validate_pose_setting
+from locnerf.odometry.rgbd import RgbdOdometryConfig
+from locnerf.odometry.tracks import DEFAULT_MAX_GAP_S, OdometryTrack, file_track, rgbd_track
+from locnerf.sim.paths import SequencePath, read_sequence_frames
+
+SYNTHETIC = "synthetic"
+RGBD = "rgbd"
+ODOMETRY_DOWNSCALE = 2
+"""Colour size divisor of the frames the RGB-D odometry reads (7-Scenes: 320×240, its depth images' size)."""
+
+
+class OdometrySourceConfig(BaseModel):
+    """Where a replay's odometry comes from."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    source: str = Field(
+        SYNTHETIC,
+        description="'synthetic' (the simulator's, from the ground truth with drift and noise), 'rgbd' (OpenCV RGB-D odometry "
+        "computed from the sequence's frames as they are replayed) or a TUM / EuRoC trajectory file matched to the images by stamp.",
+    )
+    file_format: str = Field("auto", description="Trajectory file: auto, tum or euroc.")
+    max_gap: float = Field(DEFAULT_MAX_GAP_S, gt=0, description="Trajectory file: longest spacing of samples interpolated across, seconds.")
+    T_body_cam: list[list[float]] | None = Field(
+        None, description="Trajectory file: 4×4 pose of the camera (OpenGL axes) in the file's body frame, metres; None: the body is the camera."
+    )
+    rgbd: RgbdOdometryConfig = Field(default_factory=RgbdOdometryConfig, description="RGB-D odometry settings.")
+
+    def model_post_init(self, context: object) -> None:
+        if self.T_body_cam is not None:
+            validate_pose_setting(self.T_body_cam, "odometry T_body_cam")
+
+    @property
+    def label(self) -> str:
+        """``synthetic``, ``rgbd-live`` or ``file:<name>``, as every result names its odometry."""
+        if self.source == SYNTHETIC:
+            return SYNTHETIC
+        return "rgbd-live" if self.source == RGBD else f"file:{Path(self.source).name}"
+
+
+def sequence_track(
+    config: OdometrySourceConfig,
+    path: SequencePath,
+    stamps: torch.Tensor,
+    folder: str | Path,
+    split: str,
+    T_depth_colour: torch.Tensor | None = None,
+    passes: int = 1,
+) -> OdometryTrack | None:
+    """The real odometry on ``stamps`` (K,) of a replay of ``path`` (read from ``folder``'s ``split``
+    with the colour camera ``T_depth_colour`` and ``passes``, as the path was); None for ``synthetic``.
+
+    Raises:
+        LocnerfInputError: ``rgbd`` on a replay not at the capture's frame rate (its stamps fall between frames).
+        FileNotFoundError / DatasetError: an unreadable or malformed trajectory file (file and line
+            named), one whose stamps never overlap the run's, or frames without depth for ``rgbd``.
+    """
+    if config.source == SYNTHETIC:
+        return None
+    if config.source != RGBD:
+        extrinsic = None if config.T_body_cam is None else torch.tensor(config.T_body_cam, dtype=torch.float64)
+        return file_track(config.source, stamps, config.file_format, extrinsic, config.max_gap)
+    try:
+        indices = [path.frame_at(float(stamp)) for stamp in stamps]
+    except ValueError as error:
+        raise LocnerfInputError(f"RGB-D odometry needs the replay at the capture's frame rate (--frame-rate): {error}") from error
+    frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour, passes=passes)
+    return rgbd_track(frames, indices, stamps, config.rgbd)
