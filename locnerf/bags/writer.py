@@ -14,7 +14,7 @@ from types import TracebackType
 
 import cv2
 import torch
-from rosbags.interfaces import Connection
+from rosbags.interfaces import Connection, Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from locnerf.bags.topics import BagTopics, sibling_camera_info
@@ -29,6 +29,11 @@ logger = logging.getLogger(__name__)
 
 ROSBAG2_VERSION = 8
 """metadata.yaml version written (Jazzy's; Kilted reads it too)."""
+LATCHED_TOPICS = ("/tf_static",)
+_UNSET = QosTime(0, 0)
+LATCHED_QOS = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, _UNSET, _UNSET, QosLiveliness.AUTOMATIC, _UNSET, False)
+"""tf2's static broadcaster's QoS (keep last 1, reliable, transient local), offered for /tf_static so that
+``ros2 bag play`` latches it for late subscribers."""
 COLOUR_FRAME = "camera_optical_frame"
 DEPTH_FRAME = "camera_depth_optical_frame"
 
@@ -56,7 +61,8 @@ class BagWriter:
     def _connection(self, topic: str, ros_type: str) -> Connection:
         connection = self._connections.get(topic)
         if connection is None:
-            connection = self._connections[topic] = self._writer.add_connection(topic, ros_type, typestore=typestore())
+            qos = [LATCHED_QOS] if topic in LATCHED_TOPICS else []
+            connection = self._connections[topic] = self._writer.add_connection(topic, ros_type, typestore=typestore(), offered_qos_profiles=qos)
             self.counts[topic] = 0
         elif connection.msgtype != ros_type:
             raise ValueError(f"topic {topic} is {connection.msgtype} in this bag, not {ros_type}")

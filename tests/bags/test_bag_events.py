@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import Reader
 
 from locnerf.bags.events import bag_events
@@ -86,6 +87,8 @@ def test_the_depth_offset_travels_on_tf_static_in_optical_axes(tmp_path):
     write_events(tmp_path / "bag", events)
     with Reader(tmp_path / "bag") as reader:
         (raw,) = [data for connection, _t, data in reader.messages() if connection.topic == "/tf_static"]
+        (static,) = [connection for connection in reader.connections if connection.topic == "/tf_static"]
+    assert static.ext.offered_qos_profiles[0].durability == QosDurability.TRANSIENT_LOCAL, "latched, as tf2's static broadcaster offers it"
     (transform,) = deserialize(bytes(raw), TF_MESSAGE).transforms
     assert (transform.header.frame_id, transform.child_frame_id) == ("camera_optical_frame", "camera_depth_optical_frame")
     offset = events[-1].depth.T_cam_depth
