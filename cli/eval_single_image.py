@@ -12,7 +12,7 @@ from tqdm import tqdm
 
 from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
-from locnerf.data.colour_camera import on_map_camera
+from locnerf.data.colour_camera import read_on_map_camera
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.paper_logs import read_logged_trials
@@ -34,7 +34,7 @@ from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import open_map
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import render_image
-from locnerf_cli.flags import NO_DEPTH_HELP, from_flags, without_depth
+from locnerf_cli.flags import NO_DEPTH_HELP, add_poses_argument, from_flags, without_depth
 
 logger = logging.getLogger(__name__)
 
@@ -59,6 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
         parser.add_argument("--plots", type=Path, default=None, help="folder for PNG figures")
         parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+        add_poses_argument(parser)
         parser.set_defaults(func=run, protocol=protocol)
 
 
@@ -67,11 +68,11 @@ def run(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--trials {args.trials}: expected >= 1 seeded trials, or --starts with logged ones")
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
-    pool = on_map_camera(read_dataset(args.data, split=args.split, downscale=args.downscale), radiance_map)
+    pool = read_on_map_camera(args.data, radiance_map, args.poses, split=args.split, downscale=args.downscale)
     generator = torch.Generator().manual_seed(args.seed)
     views = []
     if args.starts is not None:
-        every_frame = pool if args.split == "all" else on_map_camera(read_dataset(args.data, split="all", downscale=args.downscale), radiance_map)
+        every_frame = pool if args.split == "all" else read_on_map_camera(args.data, radiance_map, args.poses, split="all", downscale=args.downscale)
         trials = read_logged_trials(args.starts, scene=args.scene or args.data.name)
         views += logged_views(every_frame, trials, held_out_frames(args.data, "all", args.downscale))
     if args.trials:
@@ -89,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         "protocol": args.protocol,
         "map": args.map,
         "data": str(args.data),
+        "poses": args.poses,
         "seed": args.seed,
         "updates": args.updates,
         "particles": config.particles,

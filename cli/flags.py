@@ -48,3 +48,14 @@ def without_depth(config: LocalizerConfig, no_depth: bool) -> LocalizerConfig:
     if not no_depth or config.measurement.depth is None:
         return config
     return config.model_copy(update={"measurement": config.measurement.model_copy(update={"depth": None})})
+
+
+POSES_HELP = (
+    "7-Scenes ground truth: dslam (the data set's frame-NNNNNN.pose.txt, KinectFusion) or sfm (the SfM pseudo ground truth in pgt_sfm/, "
+    "Brachmann et al. 2021); a map is scored against the poses it was built from"
+)
+
+
+def add_poses_argument(parser: Any) -> None:
+    """``--poses dslam|sfm`` (checked by :func:`locnerf.data.sfm_poses.check_pose_source`, which names the choices)."""
+    parser.add_argument("--poses", default="dslam", help=POSES_HELP)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass, replace
 from typing import Annotated
 
@@ -34,8 +35,10 @@ import torch
 from pydantic import AfterValidator, Field
 
 from locnerf.data.depth_visibility import project_world_points, seen_in_depth
+from locnerf.data.detect import read_dataset
 from locnerf.data.posed_images import PosedImages
 from locnerf.data.seven_scenes import depth_points
+from locnerf.data.sfm_poses import POSES_METADATA_KEY, check_pose_source
 from locnerf.errors import DatasetError
 from locnerf.filter.warp import sample_image
 from locnerf.geometry.se3 import make_pose, pose_inverse
@@ -297,3 +300,63 @@ def metric_offset(frames: PosedImages) -> torch.Tensor | None:
     offset = frames.T_cam_depth.double().clone()
     offset[:3, 3] /= frames.normalization.scale
     return offset
+
+
+def map_pose_source(radiance_map: object) -> str:
+    """The pose source (``dslam`` | ``sfm``, :mod:`locnerf.data.sfm_poses`) a map was built from: its metadata's, else ``dslam``."""
+    return (getattr(radiance_map, "metadata", None) or {}).get(POSES_METADATA_KEY, "dslam")
+
+
+def check_map_poses(radiance_map: object, poses: str) -> str:
+    """``poses`` if the map was built from that pose source (each ground truth has its own world frame).
+
+    Raises:
+        DatasetError: naming both, for an unknown name or one that is not the map's.
+    """
+    built = map_pose_source(radiance_map)
+    if check_pose_source(poses) != built:
+        raise DatasetError(f"--poses {poses}: the map was built from {built} poses and lives in that ground truth's world frame; score it with --poses {built}")
+    return poses
+
+
+def read_on_map_camera(data: object, radiance_map: object, poses: str = "dslam", **read: object) -> PosedImages:
+    """A data set's frames (:func:`locnerf.data.read_dataset` with ``read``'s arguments) posed by ``poses``,
+    on the colour camera ``radiance_map`` was built for (:func:`on_map_camera`; with ``sfm`` the poses
+    are the colour camera's already and the map's calibration places the depth camera).
+
+    Raises:
+        DatasetError: ``poses`` unknown or not the map's (:func:`check_map_poses`), and the reader's errors.
+    """
+    check_map_poses(radiance_map, poses)
+    T_depth_colour = map_colour_camera(radiance_map) if poses == "sfm" else None
+    return on_map_camera(read_dataset(data, poses=poses, T_depth_colour=T_depth_colour, **read), radiance_map)
+
+
+def sfm_training_frames(data: object, split: str, downscale: int | None, stride: int, calibrate: bool = True) -> tuple[PosedImages, dict]:
+    """A split posed by the SfM pseudo ground truth (the colour camera's poses), and the map metadata recording it.
+
+    The depth camera's offset from the colour camera is the Kinect's own: :func:`calibrate_colour_camera` on
+    the same frames posed by the data set's depth-camera (dSLAM) poses measures it, and the SfM frames place
+    their depth camera by its inverse. ``calibrate`` False (or no depth images): depth camera at the colour camera.
+    """
+    metadata: dict = {POSES_METADATA_KEY: "sfm"}
+    T_depth_colour = None
+    dslam = read_dataset(data, split=split, downscale=downscale, stride=stride) if calibrate else None
+    if dslam is not None and dslam.depths is not None:
+        started = time.monotonic()
+        try:
+            calibration = calibrate_colour_camera(dslam)
+        except DatasetError as error:  # too few overlapping frames (a sparse subset), as in map build
+            logger.warning("colour camera not calibrated, depth camera taken at the SfM colour camera: %s", error)
+            metadata["colour_calibration"] = {"skipped": str(error)}
+            return read_dataset(data, split=split, downscale=downscale, stride=stride, poses="sfm"), metadata
+        T_depth_colour = calibration.T_depth_colour
+        metadata[METADATA_KEY] = T_depth_colour.tolist()
+        metadata["colour_calibration"] = {
+            "poses": "dslam",
+            "inconsistency_before": round(calibration.inconsistency_before, 5),
+            "inconsistency_after": round(calibration.inconsistency_after, 5),
+            "points": calibration.points,
+            "seconds": round(time.monotonic() - started, 1),
+        }
+    return read_dataset(data, split=split, downscale=downscale, stride=stride, poses="sfm", T_depth_colour=T_depth_colour), metadata

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import torch
+
 from locnerf.data.llff import read_llff
 from locnerf.data.posed_images import PosedImages
 from locnerf.data.seven_scenes import DEFAULT_DOWNSCALE as SEVEN_SCENES_DOWNSCALE
 from locnerf.data.seven_scenes import read_seven_scenes
+from locnerf.data.sfm_poses import SFM_FOLDER, check_pose_source
 from locnerf.data.transforms_json import read_nerf_synthetic, read_nerfstudio
 from locnerf.errors import DatasetError
 
@@ -37,7 +40,15 @@ def dataset_format(path: str | Path) -> str:
     )
 
 
-def read_dataset(path: str | Path, split: str = "train", downscale: int | None = None, skip_missing: bool = False, stride: int = 1) -> PosedImages:
+def read_dataset(
+    path: str | Path,
+    split: str = "train",
+    downscale: int | None = None,
+    skip_missing: bool = False,
+    stride: int = 1,
+    poses: str = "dslam",
+    T_depth_colour: torch.Tensor | None = None,
+) -> PosedImages:
     """Read one split of a data set of any supported format.
 
     Args:
@@ -47,12 +58,17 @@ def read_dataset(path: str | Path, split: str = "train", downscale: int | None =
         downscale: image size divisor; default 8 for LLFF (``images_8``), 4 for 7-Scenes, 1 otherwise.
         skip_missing: NeRF-synthetic only: leave out frames whose image is absent.
         stride: keep every ``stride``-th frame of the split.
+        poses: 7-Scenes: ``dslam`` (the frames' own poses) or ``sfm`` (the SfM pseudo ground truth,
+            :mod:`locnerf.data.sfm_poses`); other formats have their own poses only (``dslam`` means those).
+        T_depth_colour: 7-Scenes with ``sfm``: the colour camera's calibration (see :func:`read_seven_scenes`).
     """
     if stride < 1:
         raise DatasetError(f"stride={stride}: expected an integer >= 1")
     kind = dataset_format(path)
     if kind == "seven_scenes":
-        return read_seven_scenes(path, split=split, downscale=downscale or SEVEN_SCENES_DOWNSCALE, stride=stride)
+        return read_seven_scenes(path, split=split, downscale=downscale or SEVEN_SCENES_DOWNSCALE, stride=stride, poses=poses, T_depth_colour=T_depth_colour)
+    if check_pose_source(poses) != "dslam":
+        raise DatasetError(f"--poses {poses}: {path} is a {kind} data set, which has its own poses only; --poses sfm reads a 7-Scenes folder's {SFM_FOLDER}/")
     if kind == "llff":
         images = read_llff(path, downscale=downscale or 8, split=split)
     elif kind == "nerf_synthetic":

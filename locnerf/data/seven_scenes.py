@@ -34,6 +34,7 @@ from tqdm import tqdm
 from locnerf.data.image_files import read_rgb, stack_same_size
 from locnerf.data.posed_images import PosedImages
 from locnerf.data.scene_bounds import BOUNDS_FRAMES, bounds_pixel_step, depth_points, percentile_box
+from locnerf.data.sfm_poses import check_pose_source, sfm_depth_offset, sfm_poses_of, sfm_up_axis
 from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry.averaging import project_to_rotation
@@ -197,6 +198,8 @@ def read_seven_scenes(
     stride: int = 1,
     intrinsics: PinholeIntrinsics = COLOUR_INTRINSICS,
     depth: bool = True,
+    poses: str = "dslam",
+    T_depth_colour: torch.Tensor | None = None,
 ) -> PosedImages:
     """Read one split of a 7-Scenes scene.
 
@@ -209,6 +212,12 @@ def read_seven_scenes(
         stride: keep every ``stride``-th frame of the split (consecutive 30 Hz frames overlap a lot).
         intrinsics: the colour camera at the stored image size.
         depth: read the depth images (skipped when the frames have none).
+        poses: ``dslam``, the frames' ``.pose.txt`` (the depth camera, KinectFusion's world); ``sfm``, the
+            SfM pseudo ground truth of ``pgt_sfm/`` (:mod:`locnerf.data.sfm_poses`): the colour camera's
+            poses in the reconstruction's world, its focal length replacing ``intrinsics``' (same centre).
+        T_depth_colour: ``sfm`` only: (4, 4) the colour camera's pose in the depth camera's frame (a map's
+            calibration, :mod:`locnerf.data.colour_camera`, metres); the depth camera is then posed at
+            ``T_world_cam · T_depth_colour⁻¹`` (``T_cam_depth``). None: at the colour camera (identity).
     Returns:
         PosedImages in the world frame (metres, OpenGL camera axes), with ``depths`` (K, Hd, Wd)
         in metres and the depth camera when the frames have depth images.
@@ -222,14 +231,17 @@ def read_seven_scenes(
     every = [stem for sequence in _sequence_folders(folder, "all") for stem in _frame_stems(sequence)]
     position = {stem: i for i, stem in enumerate(every)}
     stems = [stem for sequence in _sequence_folders(folder, split) for stem in _frame_stems(sequence)][::stride]
-    poses = np.stack([read_pose(stem.with_name(stem.name + ".pose.txt")) for stem in stems])
+    if check_pose_source(poses) == "sfm":
+        pose_table, intrinsics = sfm_poses_of(folder, stems, intrinsics)
+    else:
+        pose_table = np.stack([read_pose(stem.with_name(stem.name + ".pose.txt")) for stem in stems])
     paths = [_colour_path(stem) for stem in stems]
     images = stack_same_size([read_rgb(p, float(downscale)) for p in tqdm(paths, desc=f"7-Scenes {split}", unit="frame", leave=False)], paths)
     full = (images.shape[2] * downscale, images.shape[1] * downscale)
     if (round(full[0]), round(full[1])) != (intrinsics.width, intrinsics.height):
         raise DatasetError(f"{paths[0]}: images about {full[0]}x{full[1]}, expected {intrinsics.width}x{intrinsics.height} for the colour intrinsics given")
     camera = intrinsics.scaled(1.0 / downscale)
-    T_world_cam = opencv_to_opengl(torch.from_numpy(poses))
+    T_world_cam = opencv_to_opengl(torch.from_numpy(pose_table))
     depth_paths = [stem.with_name(stem.name + ".depth.png") for stem in stems]
     depths, depth_camera = None, None
     if depth and any(p.is_file() for p in depth_paths):
@@ -250,11 +262,15 @@ def read_seven_scenes(
         depth_camera = _depth_camera(folder, intrinsics).decimated(ratio * depth_stride)
     box = scene_box(T_world_cam, depths, depth_camera)
     far = float((box[1] - box[0]).norm())
-    normalization = MapNormalization(near=NEAR_M, far=far, up=_up_axis(folder))
+    up = _up_axis(folder)
+    if poses == "sfm":
+        up = sfm_up_axis(sfm_poses_of(folder, every, intrinsics)[0], np.stack([read_pose(stem.with_name(stem.name + ".pose.txt")) for stem in every]), up)
+    normalization = MapNormalization(near=NEAR_M, far=far, up=up)
     logger.info(
-        "7-Scenes %s %s: %d frames %dx%d, depth %s, box %s",
+        "7-Scenes %s %s (%s poses): %d frames %dx%d, depth %s, box %s",
         folder,
         split,
+        poses,
         len(stems),
         camera.width,
         camera.height,
@@ -274,4 +290,5 @@ def read_seven_scenes(
         indices=[position[stem] for stem in stems],
         depths=depths,
         depth_intrinsics=depth_camera,
+        T_cam_depth=None if poses == "dslam" or depths is None else sfm_depth_offset(T_depth_colour),
     )

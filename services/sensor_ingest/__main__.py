@@ -142,9 +142,17 @@ def sensor_events(config: IngestConfig, bad: BadMessages | None = None) -> Itera
     if not config.replay.path:
         raise ConfigError("source = 'replay' needs replay.path: the data-set folder to replay")
     replay = config.replay
-    sequence = read_dataset(replay.path, split=replay.split, downscale=replay.downscale, skip_missing=replay.skip_missing)
-    if replay.T_depth_colour is not None:
-        sequence = with_colour_camera(sequence, colour_camera_matrix(replay.T_depth_colour))
+    T_depth_colour = None if replay.T_depth_colour is None else colour_camera_matrix(replay.T_depth_colour)
+    sequence = read_dataset(
+        replay.path,
+        split=replay.split,
+        downscale=replay.downscale,
+        skip_missing=replay.skip_missing,
+        poses=replay.poses,
+        T_depth_colour=T_depth_colour if replay.poses == "sfm" else None,
+    )
+    if T_depth_colour is not None and sequence.T_cam_depth is None:
+        sequence = with_colour_camera(sequence, T_depth_colour)
     return replay_events(sequence, config.replay, generator)
 
 

@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.colour_camera import ColourCameraSetting
 from locnerf.data.posed_images import PosedImages
+from locnerf.data.sfm_poses import PoseSource
 from locnerf.errors import DatasetError
 from locnerf.geometry.se3 import interpolate_pose
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, SensorEvent, posed_depth_frame, rgb8
@@ -33,6 +34,7 @@ class ReplaySourceConfig(BaseModel):
     frame_rate: float = Field(5.0, gt=0, description="Frames per second of the replay.")
     vio: VioConfig = Field(default_factory=VioConfig, description="Odometry (and ground-truth) rate, drift and noise.")
     T_depth_colour: ColourCameraSetting
+    poses: PoseSource = Field("dslam", description="7-Scenes folder: the ground truth, dslam (its pose files) or sfm (pgt_sfm/); the map's.")
 
 
 def replay_events(sequence: PosedImages, config: ReplaySourceConfig, generator: torch.Generator) -> Iterator[SensorEvent]:

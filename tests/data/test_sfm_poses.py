@@ -1,0 +1,137 @@
+"""7-Scenes' SfM pseudo ground truth (``--poses sfm``): parsing against a float64 oracle, the reader's use of it,
+the refusals of bad input, and the real redkitchen files against the data set's own (dSLAM) poses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from locnerf.data import read_dataset, read_seven_scenes
+from locnerf.data.colour_camera import check_map_poses, read_on_map_camera
+from locnerf.data.sfm_poses import read_sfm_poses, sfm_pose_files
+from locnerf.errors import DatasetError
+from locnerf.geometry.frames import opencv_to_opengl
+from locnerf.geometry.quaternion import matrix_to_quaternion
+from tests.data.test_seven_scenes import CAMERA, _fake_scene
+
+FOCAL = 525.505
+
+
+def _world_to_camera(index: int) -> np.ndarray:
+    """A seeded world-to-camera pose (4, 4) float64: rotation by Rodrigues' formula (OpenCV), translation drawn."""
+    rng = np.random.default_rng(index)
+    pose = np.eye(4)
+    pose[:3, :3] = cv2.Rodrigues(rng.uniform(-1.5, 1.5, 3))[0]
+    pose[:3, 3] = rng.uniform(-2.0, 2.0, 3)
+    return pose
+
+
+def _line(name: str, index: int, focal: float = FOCAL) -> str:
+    pose = _world_to_camera(index)
+    q = matrix_to_quaternion(torch.from_numpy(pose[:3, :3])).tolist()  # (w, x, y, z), an independent conversion
+    return f"{name} {' '.join(f'{v:.15f}' for v in q)} {' '.join(f'{v:.15f}' for v in pose[:3, 3])} {focal}"
+
+
+def _write_pgt(root: Path, lines: list[str]) -> Path:
+    folder = root / "pgt_sfm"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "scene_seq-01_sfm_pgt.txt"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_parses_world_to_camera_lines_into_camera_to_world_poses(tmp_path: Path) -> None:
+    path = _write_pgt(tmp_path, [_line("seq-01/frame-000000.color.png", 0), _line("seq-03/frame-000017.color.png", 1, 500.0)])
+    poses = read_sfm_poses([path])
+    assert sorted(poses) == ["seq-01/frame-000000", "seq-03/frame-000017"]
+    for key, index, focal in (("seq-01/frame-000000", 0, FOCAL), ("seq-03/frame-000017", 1, 500.0)):
+        np.testing.assert_allclose(poses[key].T_world_cam, np.linalg.inv(_world_to_camera(index)), atol=1e-12)
+        assert poses[key].focal == focal and poses[key].source.endswith(":1" if index == 0 else ":2")
+
+
+def test_reader_takes_colour_poses_focal_and_depth_offset(tmp_path: Path) -> None:
+    """A fake scene whose frames 3-5 sit in seq-02 while the file names them seq-01 (the frame number finds them)."""
+    root = _fake_scene(tmp_path / "scene")
+    _write_pgt(root, [_line(f"seq-01/frame-{i:06d}.color.png", i, 7.0) for i in range(6)])
+    offset = torch.eye(4, dtype=torch.float64)
+    offset[:3, 3] = torch.tensor([0.03, 0.01, -0.02], dtype=torch.float64)
+    test = read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA, poses="sfm", T_depth_colour=offset)
+    expected = opencv_to_opengl(torch.from_numpy(np.stack([np.linalg.inv(_world_to_camera(i)) for i in range(3, 6)])))
+    torch.testing.assert_close(test.T_world_cam, expected, atol=1e-12, rtol=0)
+    # The files' focal (at 640 px wide) scaled to this 8-px camera, halved by the downscale; the centre stays the given one's.
+    assert test.intrinsics.fx == pytest.approx(7.0 * 8 / 640 / 2) and (test.intrinsics.cx, test.intrinsics.cy) == (1.75, 1.25)
+    torch.testing.assert_close(test.T_cam_depth, torch.linalg.inv(offset))
+    # The data set's own poses are untouched by default.
+    dslam = read_seven_scenes(root, "test", downscale=2, intrinsics=CAMERA)
+    assert dslam.T_cam_depth is None and not torch.allclose(dslam.T_world_cam, test.T_world_cam)
+
+
+@pytest.mark.parametrize(
+    ("line", "expected"),
+    [
+        ("seq-01/frame-000000.color.png 1 0 0 0 0 0 0", r"scene_seq-01_sfm_pgt\.txt:1: .*expected 'seq-NN/frame-NNNNNN\.color\.png qw qx qy qz tx ty tz f'"),
+        ("seq-01/frame-000000.color.png 0.9 0 0 0 0 0 0 525", r":1: quaternion of norm 0\.900000, expected a unit quaternion"),
+        ("seq-01/frame-000000.color.png 1 0 0 0 0 0 zero 525", r":1: .*expected 8 numbers"),
+        ("seq-01/frame-000000.color.png 1 0 0 0 0 0 0 -5", r":1: focal length -5\.0, expected > 0"),
+        ("frame.png 1 0 0 0 0 0 0 525", r":1: 'frame\.png 1 0 0 0 0 0 0 525', expected"),
+    ],
+)
+def test_refuses_bad_lines_naming_file_and_line(tmp_path: Path, line: str, expected: str) -> None:
+    path = _write_pgt(tmp_path, [line])
+    with pytest.raises(DatasetError, match=expected):
+        read_sfm_poses([path])
+
+
+def test_refuses_a_frame_given_twice(tmp_path: Path) -> None:
+    path = _write_pgt(tmp_path, [_line("seq-01/frame-000000.color.png", 0), _line("seq-01/frame-000000.color.png", 1)])
+    with pytest.raises(DatasetError, match=r":2: frame seq-01/frame-000000\.color\.png already given at .*:1"):
+        read_sfm_poses([path])
+
+
+def test_refuses_missing_files_frames_and_unknown_pose_names(tmp_path: Path) -> None:
+    root = _fake_scene(tmp_path / "scene")
+    with pytest.raises(FileNotFoundError, match=r"scene/pgt_sfm/\*_sfm_pgt\.txt: no such file"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA, poses="sfm")
+    _write_pgt(root, [_line("seq-01/frame-000000.color.png", 0), _line("seq-01/frame-000001.color.png", 1)])
+    with pytest.raises(DatasetError, match=r"seq-01/frame-000002: no line in .*sfm_pgt\.txt"):
+        read_seven_scenes(root, "train", downscale=2, intrinsics=CAMERA, poses="sfm")
+    with pytest.raises(DatasetError, match=r"--poses 'colmap': expected one of dslam, sfm"):
+        read_dataset(root, "train", downscale=2, poses="colmap")
+
+
+def test_a_map_is_scored_only_against_the_poses_it_was_built_from(tmp_path: Path) -> None:
+    class Built:
+        metadata = {"poses": "sfm"}
+
+    root = _fake_scene(tmp_path / "scene")
+    assert check_map_poses(Built(), "sfm") == "sfm"
+    with pytest.raises(DatasetError, match=r"--poses dslam: the map was built from sfm poses .* --poses sfm"):
+        read_on_map_camera(root, Built(), "dslam", split="test", downscale=2)
+    with pytest.raises(DatasetError, match=r"--poses 'x': expected one of dslam, sfm"):
+        check_map_poses(Built(), "x")
+
+
+def test_real_redkitchen_sfm_poses_agree_with_dslam_after_a_similarity(shared_data: Path) -> None:
+    """Every 20th frame: after a similarity fit (Umeyama) of the SfM colour-camera centres onto the dSLAM
+    depth-camera centres, they agree to a few centimetres (over all 1000 frames: median 3.7 cm, largest 10.8 cm, scale 0.993;
+    the colour camera sits ~3 cm from the depth camera, inside that)."""
+    folder = shared_data / "7scenes_redkitchen"
+    sfm = read_seven_scenes(folder, split="all", downscale=8, stride=20, depth=False, poses="sfm")
+    dslam = read_seven_scenes(folder, split="all", downscale=8, stride=20, depth=False)
+    assert sfm.names == dslam.names and len(sfm) == 50
+    assert sfm.intrinsics.fx == pytest.approx(525.505 / 8)
+    assert len(sfm_pose_files(folder)) == 1
+    source, target = sfm.T_world_cam[:, :3, 3].numpy(), dslam.T_world_cam[:, :3, 3].numpy()
+    transform, scale = cv2.estimateAffine3D(source, target, force_rotation=True)
+    residual = np.linalg.norm(scale * source @ transform[:, :3].T + transform[:, 3] - target, axis=1)
+    assert scale == pytest.approx(0.993, abs=0.01)
+    assert np.median(residual) < 0.05 and residual.max() < 0.12
+    # The map's up axis (the gravity file's, rotated into the SfM world) seen from each camera is the dSLAM one's.
+    in_sfm = sfm.T_world_cam[:, :3, :3].transpose(1, 2) @ torch.tensor(sfm.normalization.up, dtype=torch.float64)
+    in_dslam = dslam.T_world_cam[:, :3, :3].transpose(1, 2) @ torch.tensor(dslam.normalization.up, dtype=torch.float64)
+    angles = torch.rad2deg(torch.acos((in_sfm * in_dslam).sum(-1).clamp(-1, 1)))
+    assert float(angles.median()) < 3.0
