@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from locnerf.errors import DatasetError
+from locnerf.geometry.averaging import project_to_rotation
 from locnerf.geometry.se3 import pose_inverse
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -160,11 +161,16 @@ def similarity_rotation(source: np.ndarray, target: np.ndarray) -> tuple[np.ndar
     (N, 3) points ``source`` onto ``target``, float64.
 
     Raises:
-        DatasetError: for fewer than 3 points.
+        DatasetError: for fewer than 3 points, or points that span no plane.
     """
     if len(source) < 3:
         raise DatasetError(f"a similarity fit needs at least 3 camera centres, got {len(source)}")
-    transform, scale = cv2.estimateAffine3D(np.ascontiguousarray(source, dtype=np.float64), np.ascontiguousarray(target, dtype=np.float64), force_rotation=True)
+    try:
+        transform, scale = cv2.estimateAffine3D(
+            np.ascontiguousarray(source, dtype=np.float64), np.ascontiguousarray(target, dtype=np.float64), force_rotation=True
+        )
+    except cv2.error as error:
+        raise DatasetError(f"similarity fit of {len(source)} camera centres: they span no plane (OpenCV: {error.err})") from None
     return transform[:, :3], float(scale)
 
 
@@ -203,8 +209,12 @@ def sfm_up_axis(sfm: np.ndarray, dslam: np.ndarray, up: tuple[float, float, floa
     """The up axis ``up`` of the dSLAM world (its gravity file) in the SfM world: rotated by the
     similarity fitted on the two sets of camera centres (``sfm``, ``dslam``: (K, 4, 4) camera-to-world
     of the same frames; every frame of the scene, so that each split gets the same axis)."""
-    rotation, scale = similarity_rotation(dslam[:, :3, 3], sfm[:, :3, 3])
-    logger.info("SfM world: similarity to the dSLAM world over %d camera centres, scale %.4f", len(sfm), scale)
+    try:
+        rotation, scale = similarity_rotation(dslam[:, :3, 3], sfm[:, :3, 3])
+        logger.info("SfM world: similarity to the dSLAM world over %d camera centres, scale %.4f", len(sfm), scale)
+    except DatasetError as error:  # centres that span no plane (a camera that barely moved): the orientations' mean rotation
+        logger.warning("%s; the up axis follows the mean rotation between the two ground truths' orientations", error)
+        rotation = project_to_rotation(torch.from_numpy(np.einsum("kij,klj->il", sfm[:, :3, :3], dslam[:, :3, :3]))).numpy()
     return rotated_axis(rotation, up)
 
 

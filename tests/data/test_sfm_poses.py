@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from pydantic import ValidationError
 
 from locnerf.data import read_dataset, read_seven_scenes
 from locnerf.data.colour_camera import check_map_poses, read_on_map_camera
@@ -16,6 +17,8 @@ from locnerf.data.sfm_poses import read_sfm_poses, sfm_pose_files
 from locnerf.errors import DatasetError
 from locnerf.geometry.frames import opencv_to_opengl
 from locnerf.geometry.quaternion import matrix_to_quaternion
+from locnerf.sim.events import GroundTruthEvent
+from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
 from tests.data.test_seven_scenes import CAMERA, _fake_scene
 
 FOCAL = 525.505
@@ -135,3 +138,35 @@ def test_real_redkitchen_sfm_poses_agree_with_dslam_after_a_similarity(shared_da
     in_dslam = dslam.T_world_cam[:, :3, :3].transpose(1, 2) @ torch.tensor(dslam.normalization.up, dtype=torch.float64)
     angles = torch.rad2deg(torch.acos((in_sfm * in_dslam).sum(-1).clamp(-1, 1)))
     assert float(angles.median()) < 3.0
+
+
+def _full_size_scene(root: Path) -> Path:
+    """seq-01 frames 0-2 (train) and seq-02 frames 3-5 (test) at 7-Scenes' sizes: colour 640x480, depth 320x240."""
+    for sequence, numbers in ((1, range(0, 3)), (2, range(3, 6))):
+        folder = root / f"seq-{sequence:02d}"
+        folder.mkdir(parents=True)
+        for number in numbers:
+            stem = folder / f"frame-{number:06d}"
+            cv2.imwrite(f"{stem}.color.png", np.full((480, 640, 3), 40 * number, np.uint8))
+            cv2.imwrite(f"{stem}.depth.png", np.full((240, 320), 1500, np.uint16))
+            np.savetxt(f"{stem}.pose.txt", np.eye(4))
+    (root / "TrainSplit.txt").write_text("sequence1\n")
+    (root / "TestSplit.txt").write_text("sequence2\n")
+    _write_pgt(root, [_line(f"seq-01/frame-{i:06d}.color.png", i) for i in range(6)])
+    return root
+
+
+def test_the_replay_source_streams_the_sfm_ground_truth(tmp_path: Path) -> None:
+    """The ingest's replay of a 7-Scenes folder with ``replay.poses = "sfm"``: its ground-truth events are the
+    SfM colour-camera poses (OpenGL axes), the depth camera placed by the calibration given; unknown names refused."""
+    root = _full_size_scene(tmp_path / "scene")
+    offset = torch.eye(4, dtype=torch.float64)
+    offset[:3, 3] = torch.tensor([0.03, 0.0, 0.0], dtype=torch.float64)
+    replay = {"path": str(root), "split": "test", "downscale": 8, "frame_rate": 1.0, "poses": "sfm", "T_depth_colour": offset.tolist()}
+    replay["vio"] = {"rate": 1.0}
+    events = list(sensor_events(IngestConfig(source="replay", replay=replay)))
+    truths = [event.T_world_cam for event in events if isinstance(event, GroundTruthEvent)]
+    expected = opencv_to_opengl(torch.from_numpy(np.stack([np.linalg.inv(_world_to_camera(i)) for i in range(3, 6)])))
+    torch.testing.assert_close(torch.stack(truths), expected, atol=1e-9, rtol=0)
+    with pytest.raises(ValidationError, match=r"poses\n  Input should be 'dslam' or 'sfm'"):
+        IngestConfig(source="replay", replay={**replay, "poses": "colmap"})
