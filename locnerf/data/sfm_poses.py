@@ -169,8 +169,8 @@ def similarity_rotation(source: np.ndarray, target: np.ndarray) -> tuple[np.ndar
         transform, scale = cv2.estimateAffine3D(
             np.ascontiguousarray(source, dtype=np.float64), np.ascontiguousarray(target, dtype=np.float64), force_rotation=True
         )
-    except cv2.error as error:
-        raise DatasetError(f"similarity fit of {len(source)} camera centres: they span no plane (OpenCV: {error.err})") from None
+    except cv2.error:
+        raise DatasetError(f"similarity fit of {len(source)} camera centres: they span no plane") from None
     return transform[:, :3], float(scale)
 
 
