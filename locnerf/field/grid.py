@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.field.encoding import frequency_encoding
 from locnerf.field.grid_march import SKIP_DISTANCE_CAP, SkipTable, chebyshev_distance, march
+from locnerf.field.grid_march_fused import fused_march
 from locnerf.render.volume import ray_box_intersection, weights_from_optical_depth
 
 RETIRED_CONFIG_FIELDS = ("block_samples", "coarse_factor")
@@ -120,6 +121,8 @@ class GridField(torch.nn.Module):
         self.register_buffer("box", box.float().clone())
         self.register_buffer("background", torch.tensor(background if background is not None else (0.0, 0.0, 0.0)))
         self.has_background = background is not None
+        self.fused_march = True
+        """CPU renders march with the compiled per-ray loop (False: the batched torch marcher, as on a GPU)."""
         rx, ry, rz = resolution if resolution is not None else grid_shape_for_box(box, config.voxels, config.voxel_aspect)
         channels = 4 + config.features
         self._resolution = (rx, ry, rz)
@@ -363,7 +366,9 @@ class GridField(torch.nn.Module):
 
     def _march_rays(self, origins: torch.Tensor, directions: torch.Tensor, with_position: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Composited channels (R, 3 + F [+ 3 vertex coordinates]), log transmittance (R,) and the
-        field-to-vertex scale (3,) of rays (R, 3) x2: the sampling of :meth:`render`."""
+        field-to-vertex scale (3,) of rays (R, 3) x2: the sampling of :meth:`render`, marched by the
+        compiled per-ray loop on the CPU (:mod:`grid_march_fused`, unless ``fused_march`` is False)
+        and by the batched torch marcher elsewhere (:func:`grid_march.march`)."""
         cells = torch.tensor([r - 1 for r in self._resolution], device=origins.device, dtype=origins.dtype)
         to_vertices = cells / (self.box[1] - self.box[0])
         t_entry, t_exit = ray_box_intersection(origins, directions, self.occupied_box)
@@ -372,6 +377,20 @@ class GridField(torch.nn.Module):
         counts = ((t_exit - t_entry) / dt - 0.5).clamp_min(0).ceil().long()
         start = (origins + (t_entry + 0.5 * dt)[:, None] * directions - self.box[0]) * to_vertices
         step = dt[:, None] * directions * to_vertices
+        if self.fused_march and origins.device.type == "cpu":
+            composited, log_transmittance = fused_march(
+                start,
+                step,
+                counts,
+                self._skip_table(),
+                self.grid,
+                self._resolution,
+                self.density_shift,
+                self.config.step_ratio * self.config.render_step_factor,
+                self.config.termination_transmittance,
+                with_position,
+            )
+            return composited, log_transmittance, to_vertices
         composited, log_transmittance = march(
             start,
             step,

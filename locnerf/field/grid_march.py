@@ -23,7 +23,8 @@ import torch
 Shader = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """positions (N, 3) in vertex coordinates -> optical depth σ·δ (N,), channels to composite (N, C)."""
 
-_JUMP_MARGIN = 1e-3  # vertices of slack in the skip bound against float rounding
+JUMP_MARGIN = 1e-3
+"""Vertices of slack in the skip bound against float rounding."""
 SKIP_DISTANCE_CAP = 16
 """Largest Chebyshev distance (vertices) a skip table stores: longer jumps gain little inside the occupied box."""
 BLOCK_SAMPLES = 24
@@ -97,7 +98,7 @@ def _skip_empty(table: SkipTable, rays_table: torch.Tensor, index: torch.Tensor,
     straggle = len(rays) // SKIP_STRAGGLERS
     while len(rays) > straggle:
         gap = table(torch.addcmul(rows[:, _START], at[:, None], rows[:, _STEP]))
-        jump = torch.ceil((gap - _JUMP_MARGIN) * rows[:, _INVERSE_REACH])
+        jump = torch.ceil((gap - JUMP_MARGIN) * rows[:, _INVERSE_REACH])
         far = jump >= min_jump
         at = torch.where(far, at + jump, at)
         index[rays] = at

@@ -124,15 +124,18 @@ def _dense_reference(field: GridField, origins: torch.Tensor, directions: torch.
     return colour.clamp(0.0, 1.0), 1.0 - transmittance, weighted_points
 
 
+@pytest.mark.parametrize("fused", [True, False], ids=["fused", "torch"])
 @pytest.mark.parametrize("render_step_factor", [1.0, 2.0])
-def test_render_matches_dense_float64_sampling(generator: torch.Generator, render_step_factor: float) -> None:
-    """Skipping changes nothing: float32 marcher vs float64 dense scan without early termination.
+def test_render_matches_dense_float64_sampling(generator: torch.Generator, render_step_factor: float, fused: bool) -> None:
+    """Skipping changes nothing: float32 marcher (the compiled per-ray loop, or the batched torch
+    marcher that GPUs run) vs float64 dense scan without early termination.
 
     Tolerance 1e-4: float32 rounding of the lookups, compositing and decoder (the float32 dense
     scan of ``render_training`` is itself ~2e-5 off). Which samples are shaded is checked exactly
     by the test above.
     """
     field = _blob_field(generator, termination=1e-12, render_step_factor=render_step_factor)
+    field.fused_march = fused
     assert 0.005 < float(field.occupancy.float().mean()) < 0.2  # sparse enough for the skips to matter
     origins, directions = _rays(generator, 300)
     reference, opacity, _ = _dense_reference(field, origins, directions)
@@ -142,14 +145,17 @@ def test_render_matches_dense_float64_sampling(generator: torch.Generator, rende
     # Early termination at T < 1e-3 changes a colour by at most about the transmittance it drops.
     terminated = GridField(field.box, field.config.model_copy(update={"termination_transmittance": 1e-3}), (1.0, 1.0, 1.0))
     terminated.load_state_dict(field.state_dict())
+    terminated.fused_march = fused
     assert float((terminated.render(origins, directions, directions).double() - reference).abs().max()) < 5e-3
 
 
-def test_render_surface_matches_dense_float64_sampling(generator: torch.Generator) -> None:
+@pytest.mark.parametrize("fused", [True, False], ids=["fused", "torch"])
+def test_render_surface_matches_dense_float64_sampling(generator: torch.Generator, fused: bool) -> None:
     """The surface render: the colours of :meth:`GridField.render`, the opacity and expected point
     ``Σ w x / Σ w`` of a float64 dense scan (tolerance 1e-4 in opacity, 1e-3 map units in the point of
     rays at least 1 % opaque: float32 compositing), and the ray's origin where it met nothing."""
     field = _blob_field(generator, termination=1e-12, render_step_factor=2.0)
+    field.fused_march = fused
     origins, directions = _rays(generator, 300)
     _, reference_opacity, weighted_points = _dense_reference(field, origins, directions)
     colour, points, opacity = field.render_surface(origins, directions, directions)
@@ -162,3 +168,38 @@ def test_render_surface_matches_dense_float64_sampling(generator: torch.Generato
     missed = opacity == 0
     assert bool(missed.any())
     torch.testing.assert_close(points[missed], origins[missed])
+
+
+@pytest.mark.parametrize("render_step_factor", [1.0, 2.0])
+def test_fused_marcher_agrees_with_torch_marcher_when_terminating(generator: torch.Generator, render_step_factor: float) -> None:
+    """With early termination on (T < 1e-3, the maps' setting) the compiled loop stops at the sample where
+    the transmittance is spent, the torch marcher at the end of that block: colours, opacities and the surface
+    points of rays at least 1 % opaque agree to within the termination transmittance (2e-3 allows for the view
+    features' magnitude); a ray that terminates in neither is the same to float32 rounding."""
+    field = _blob_field(generator, termination=1e-3, render_step_factor=render_step_factor)
+    origins, directions = _rays(generator, 400)
+    fused = field.render_surface(origins, directions, directions)
+    field.fused_march = False
+    batched = field.render_surface(origins, directions, directions)
+    torch.testing.assert_close(fused[0], batched[0], atol=2e-3, rtol=0)
+    torch.testing.assert_close(fused[2], batched[2], atol=2e-3, rtol=0)
+    seen = batched[2] > 0.01  # a surface point is defined (Σ w x / Σ w) where the ray met something
+    torch.testing.assert_close(fused[1][seen], batched[1][seen], atol=2e-3, rtol=0)
+    clear = batched[2] < 0.99  # never came near the termination threshold
+    assert int(clear.sum()) > 50
+    torch.testing.assert_close(fused[0][clear], batched[0][clear], atol=1e-5, rtol=0)
+
+
+def test_fused_marcher_threads_give_the_same_colours(generator: torch.Generator) -> None:
+    """Rays are independent: the parallel variant (2 threads) returns the serial one's colours bit for bit."""
+    field = _blob_field(generator, termination=1e-3, render_step_factor=2.0)
+    origins, directions = _rays(generator, 500)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        serial = field.render(origins, directions, directions)
+        torch.set_num_threads(2)
+        parallel = field.render(origins, directions, directions)
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(serial, parallel)
