@@ -29,3 +29,9 @@ lint: $(STAMP)
 
 clean:
 	rm -rf $(VENV) build *.egg-info
+
+# The compose stack end to end (needs Docker with Compose v2; not part of `make test`): one image build,
+# services started before their router, 150 poses read on the host, the router restarted (deploy/check_stack.sh).
+.PHONY: compose-check
+compose-check: $(STAMP)
+	PYTHON=$(BIN)/python deploy/check_stack.sh

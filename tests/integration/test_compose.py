@@ -11,9 +11,11 @@ replaced; the override's certificate mounts point at certificates made by ``locn
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -21,8 +23,10 @@ import zenoh
 from ruamel.yaml import YAML
 
 from locnerf_cli.certs import make_certificates
+from locnerf_services.transport import TransportConfig
+from locnerf_services.transport.router import Router, router_config
 from tests.integration.conftest import REPO, Observer, Stack, wait_for, watch
-from tests.integration.routing import SECURE, open_client, start_router, tls_for
+from tests.integration.routing import PLAIN, SECURE, open_client, start_router, tls_for
 from tests.services.helpers import free_port
 
 COMPOSE = REPO / "docker-compose.yml"
@@ -147,3 +151,54 @@ def test_ros2_override_is_valid_and_runs_the_filter_with_ros2_and_no_synthetic_i
     assert config.ros2.enabled and config.ros2.sensors and config.ros2.pose_topic == "amcl_pose"
     relay = load_service_config(IngestConfig, REPO / "deploy/config/ingest_ros2.toml", {})
     assert relay.source == "ros2" and relay.ros2.odometry_topic == "odom"
+
+
+LOCNERF_SERVICES = (*SERVICES, "worker-cuda")
+
+
+def test_one_service_builds_each_locnerf_image_and_the_others_run_it():
+    services = YAML(typ="safe").load(COMPOSE.read_text())["services"]
+    version = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
+    builders = {services[name]["image"]: name for name in LOCNERF_SERVICES if "build" in services[name]}
+    assert builders == {f"locnerf:{version}": "worker", f"locnerf:{version}-cuda": "worker-cuda"}
+    assert sum("build" in service for service in services.values()) == len(builders), "one build entry per image"
+    for name in LOCNERF_SERVICES:
+        # Never pulled (a registry's "locnerf" is someone else's): built by its builder when missing.
+        assert services[name]["image"] in builders and services[name]["pull_policy"] == "never", name
+        assert services[builders[services[name]["image"]]]["build"]["dockerfile"] == "deploy/docker/Dockerfile"
+
+
+def test_services_wait_for_a_healthy_router_retry_it_and_restart_after_a_failure():
+    services = merged_services(COMPOSE)
+    assert services[ROUTER_HOST]["restart"] == "unless-stopped" and services[ROUTER_HOST]["healthcheck"]["test"][0] == "CMD-SHELL"
+    for name in LOCNERF_SERVICES:
+        assert services[name]["depends_on"] == {ROUTER_HOST: {"condition": "service_healthy"}}, name
+        assert TransportConfig().with_environment(services[name]["environment"]).connect_retry >= 60, name
+    assert {name: services[name]["restart"] for name in SERVICES} == {"worker": "unless-stopped", "filter": "unless-stopped", "ingest": "on-failure"}
+
+
+def test_the_router_healthcheck_passes_once_the_router_listens_and_fails_before():
+    check = merged_services(COMPOSE)[ROUTER_HOST]["healthcheck"]["test"][1]
+    assert "7447" in check
+    port = free_port()
+    local_check = ["sh", "-c", check.replace("7447", str(port))]
+    assert subprocess.run(local_check, timeout=30).returncode != 0
+    router = Router(router_config(PLAIN, [("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))]))
+    try:
+        assert subprocess.run(local_check, timeout=30).returncode == 0
+    finally:
+        router.close()
+
+
+def test_the_image_is_multi_stage_without_system_packages_and_its_context_holds_only_the_sources():
+    dockerfile = (REPO / "deploy/docker/Dockerfile").read_text()
+    stages = re.findall(r"^FROM (\S+) AS (\S+)$", dockerfile, flags=re.MULTILINE)
+    assert [image for image, _ in stages] == ["python:3.11-slim"] * 3 and stages[-1][1] == "runtime"
+    runtime = dockerfile.split("AS runtime", 1)[1]
+    assert "RUN " not in runtime, "the runtime stage only copies the environment built in the others"
+    assert re.findall(r"^COPY --from=(\S+) /opt/locnerf /opt/locnerf$", runtime, flags=re.MULTILINE) == ["deps", "project"]
+    assert "apt-get" not in dockerfile and "libgl" not in dockerfile
+    copied = {path for line in dockerfile.splitlines() if line.startswith("COPY ") and "--from" not in line for path in line.split()[1:-1]}
+    kept = {line[1:] for line in (REPO / ".dockerignore").read_text().splitlines() if line.startswith("!")}
+    assert {Path(path).name for path in copied} == kept == {"pyproject.toml", "README.md", "locnerf", "services", "cli"}
+    assert "*" in (REPO / ".dockerignore").read_text().splitlines(), "the context starts from nothing"
