@@ -30,6 +30,9 @@ RETIRED_CONFIG_FIELDS = ("block_samples", "coarse_factor")
 MAX_GRID_VERTICES = 2**27
 """Most vertices of a grid (512³: 6.4 GB of float32 at the default 12 channels; the default map has 128³ = 2.1M).
 Map files asking for more are refused before anything is allocated."""
+DECODE_CHUNK = 4096
+"""Rays per call of the view decoder in no-gradient renders: its hidden layer (rays × width floats) then stays
+in cache instead of being a fresh allocation of tens of MB per call (page faults cost more than the matmul)."""
 MAX_FEATURES, MAX_DECODER_WIDTH, MAX_DIRECTION_FREQUENCIES = 64, 1024, 16
 """Largest view features per vertex, decoder width and direction octaves a grid field is built with."""
 
@@ -406,8 +409,9 @@ class GridField(torch.nn.Module):
         """rgb (R, 3) in [0, 1] from composited (R, 3 + F) channels; rays that met nothing are the background (or black)."""
         colour = self.background.expand(len(composited), 3).clone() if self.has_background else composited.new_zeros(len(composited), 3)
         hit = (log_transmittance < 0).nonzero(as_tuple=True)[0]
-        opacity = -torch.expm1(log_transmittance[hit])
-        colour[hit] = self._ray_colour(composited[hit, :3], composited[hit, 3:], opacity, view_directions[hit])
+        for chunk in hit.split(DECODE_CHUNK):
+            opacity = -torch.expm1(log_transmittance[chunk])
+            colour[chunk] = self._ray_colour(composited[chunk, :3], composited[chunk, 3:], opacity, view_directions[chunk])
         return colour.clamp(0.0, 1.0)
 
     @torch.no_grad()
