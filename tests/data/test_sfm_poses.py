@@ -3,6 +3,8 @@ the refusals of bad input, and the real redkitchen files against the data set's 
 
 from __future__ import annotations
 
+import json
+import logging
 from pathlib import Path
 
 import cv2
@@ -15,26 +17,31 @@ from locnerf.data import read_dataset, read_seven_scenes
 from locnerf.data.colour_camera import check_map_poses, read_on_map_camera
 from locnerf.data.sfm_poses import read_sfm_poses, sfm_pose_files
 from locnerf.errors import DatasetError
+from locnerf.field.map_file import read_map_archive
 from locnerf.geometry.frames import opencv_to_opengl
 from locnerf.geometry.quaternion import matrix_to_quaternion
 from locnerf.sim.events import GroundTruthEvent
+from locnerf_cli.main import main
 from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
 from tests.data.test_seven_scenes import CAMERA, _fake_scene
 
 FOCAL = 525.505
+SPREAD = 0.05
+"""Pose spread of the full-size fake scene (a small room keeps its map's surface-distance layer small)."""
 
 
-def _world_to_camera(index: int) -> np.ndarray:
-    """A seeded world-to-camera pose (4, 4) float64: rotation by Rodrigues' formula (OpenCV), translation drawn."""
+def _world_to_camera(index: int, spread: float = 1.0) -> np.ndarray:
+    """A seeded world-to-camera pose (4, 4) float64: rotation by Rodrigues' formula (OpenCV), translation drawn
+    (up to 1.5 rad and 2 units times ``spread``)."""
     rng = np.random.default_rng(index)
     pose = np.eye(4)
-    pose[:3, :3] = cv2.Rodrigues(rng.uniform(-1.5, 1.5, 3))[0]
-    pose[:3, 3] = rng.uniform(-2.0, 2.0, 3)
+    pose[:3, :3] = cv2.Rodrigues(spread * rng.uniform(-1.5, 1.5, 3))[0]
+    pose[:3, 3] = spread * rng.uniform(-2.0, 2.0, 3)
     return pose
 
 
-def _line(name: str, index: int, focal: float = FOCAL) -> str:
-    pose = _world_to_camera(index)
+def _line(name: str, index: int, focal: float = FOCAL, spread: float = 1.0) -> str:
+    pose = _world_to_camera(index, spread)
     q = matrix_to_quaternion(torch.from_numpy(pose[:3, :3])).tolist()  # (w, x, y, z), an independent conversion
     return f"{name} {' '.join(f'{v:.15f}' for v in q)} {' '.join(f'{v:.15f}' for v in pose[:3, 3])} {focal}"
 
@@ -152,7 +159,7 @@ def _full_size_scene(root: Path) -> Path:
             np.savetxt(f"{stem}.pose.txt", np.eye(4))
     (root / "TrainSplit.txt").write_text("sequence1\n")
     (root / "TestSplit.txt").write_text("sequence2\n")
-    _write_pgt(root, [_line(f"seq-01/frame-{i:06d}.color.png", i) for i in range(6)])
+    _write_pgt(root, [_line(f"seq-01/frame-{i:06d}.color.png", i, spread=SPREAD) for i in range(6)])
     return root
 
 
@@ -166,7 +173,25 @@ def test_the_replay_source_streams_the_sfm_ground_truth(tmp_path: Path) -> None:
     replay["vio"] = {"rate": 1.0}
     events = list(sensor_events(IngestConfig(source="replay", replay=replay)))
     truths = [event.T_world_cam for event in events if isinstance(event, GroundTruthEvent)]
-    expected = opencv_to_opengl(torch.from_numpy(np.stack([np.linalg.inv(_world_to_camera(i)) for i in range(3, 6)])))
+    expected = opencv_to_opengl(torch.from_numpy(np.stack([np.linalg.inv(_world_to_camera(i, SPREAD)) for i in range(3, 6)])))
     torch.testing.assert_close(torch.stack(truths), expected, atol=1e-9, rtol=0)
     with pytest.raises(ValidationError, match=r"poses\n  Input should be 'dslam' or 'sfm'"):
         IngestConfig(source="replay", replay={**replay, "poses": "colmap"})
+
+
+def test_map_build_and_eval_with_sfm_poses(tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture) -> None:
+    """``map build --poses sfm`` records its pose source and scores the test split against the SfM poses;
+    ``map eval`` of that map with the default dSLAM poses is refused, with ``--poses sfm`` it scores."""
+    root = _full_size_scene(tmp_path / "scene")
+    out = tmp_path / "sfm.locmap"
+    build = ["map", "build", str(root), "--out", str(out), "--poses", "sfm", "--downscale", "32", "--steps", "3", "--voxels", "512", "--device", "cpu"]
+    assert main(build) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["poses"] == "sfm" and report["heldout_views"] == 3
+    metadata = read_map_archive(out)["info"]["metadata"]
+    assert metadata["poses"] == "sfm"
+    with caplog.at_level(logging.ERROR):
+        assert main(["map", "eval", str(out), str(root), "--downscale", "32", "--device", "cpu", "--json"]) != 0
+    assert "--poses dslam: the map was built from sfm poses" in caplog.text
+    assert main(["map", "eval", str(out), str(root), "--downscale", "32", "--device", "cpu", "--json", "--poses", "sfm"]) == 0
+    assert json.loads(capsys.readouterr().out)["views"] == 3
