@@ -12,7 +12,8 @@ import numpy as np
 import torch
 
 from locnerf.data import read_dataset
-from locnerf.data.colour_camera import on_map_camera
+from locnerf.data.colour_camera import read_on_map_camera, sfm_training_frames
+from locnerf.data.sfm_poses import check_pose_source
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.plots import plot_images_beside_renders
@@ -26,7 +27,7 @@ from locnerf.field.surface_distance import SurfaceDistanceConfig
 from locnerf.render.image import render_image
 from locnerf.train import BuildConfig, RoomConfig, build_map, evaluate_held_out, psnr
 from locnerf.train.surface_layer import surface_distance_of_frames
-from locnerf_cli.flags import from_flags
+from locnerf_cli.flags import add_poses_argument, from_flags
 
 logger = logging.getLogger(__name__)
 
@@ -59,6 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     build.add_argument("--device", default="auto", help="auto | cpu | cuda[:N]")
     build.add_argument("--seed", type=int, default=0)
+    add_poses_argument(build)
     build.set_defaults(func=run_build)
 
     evaluate = commands.add_parser("eval", help="PSNR/SSIM of a map against a data set's views")
@@ -70,6 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     evaluate.add_argument("--stride", type=int, default=1, help="evaluate every N-th view of the split")
     evaluate.add_argument("--device", default="auto")
     evaluate.add_argument("--json", action="store_true", help="print JSON")
+    add_poses_argument(evaluate)
     evaluate.set_defaults(func=run_eval)
 
     render = commands.add_parser("render", help="render one view of a map to a PNG")
@@ -128,14 +131,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.set_defaults(func=run_info)
 
 
-def _split_on_map_camera(radiance_map, data: str, downscale: int | None, split: str = "test", stride: int = 1):
-    """The frames of ``split`` (held-out views, or the training frames) on the camera the map was built for (:func:`on_map_camera`)."""
-    return on_map_camera(read_dataset(data, split=split, downscale=downscale, skip_missing=True, stride=stride), radiance_map)
+def _split_on_map_camera(radiance_map, data: str, downscale: int | None, split: str = "test", stride: int = 1, poses: str = "dslam"):
+    """The frames of ``split`` (held-out views, or the training frames) posed by ``poses`` on the camera the map was built for (:func:`read_on_map_camera`)."""
+    return read_on_map_camera(data, radiance_map, poses, split=split, downscale=downscale, skip_missing=True, stride=stride)
+
+
+def _training_frames(args: argparse.Namespace):
+    """The frames ``map build`` trains on, and the map metadata of their pose source: with ``--poses sfm``
+    the SfM colour-camera poses, the depth camera placed by the colour camera calibrated on the dSLAM poses
+    (the Kinect's own offset; :func:`sfm_training_frames`)."""
+    if check_pose_source(args.poses) == "dslam":
+        return read_dataset(args.data, split=args.split, downscale=args.downscale, stride=args.stride), {}
+    return sfm_training_frames(args.data, args.split, args.downscale, args.stride, calibrate=not args.no_colour_calibration)
 
 
 def run_build(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
-    train = read_dataset(args.data, split=args.split, downscale=args.downscale, stride=args.stride)
+    train, pose_metadata = _training_frames(args)
     if args.backend == "nerf_pytorch":
         if not args.checkpoint:
             raise LocnerfInputError("--backend nerf_pytorch needs --checkpoint FILE.tar")
@@ -154,7 +166,8 @@ def run_build(args: argparse.Namespace) -> int:
         }
         config = from_flags(BuildConfig, values, {"use_depth": "--no-depth", "calibrate_colour_camera": "--no-colour-calibration"})
         radiance_map = build_map(train, config, device=device, progress=True)
-    test_views = _split_on_map_camera(radiance_map, args.data, args.downscale)
+    radiance_map.metadata.update(pose_metadata)
+    test_views = _split_on_map_camera(radiance_map, args.data, args.downscale, poses=args.poses)
     scores = evaluate_held_out(radiance_map.render_rays, test_views, radiance_map.reference_poses(), device)
     radiance_map.metadata.update(train_split=args.split, train_stride=args.stride, train_views=len(train), **_score_metadata(scores, args.split))
     save_map(radiance_map, args.out)
@@ -185,7 +198,7 @@ def run_eval(args: argparse.Namespace) -> int:
     if (args.data is None) == (args.data_option is None):
         raise LocnerfInputError("map eval: name the data set once, as DATA or --data DATA")
     radiance_map = load_map(args.map, device)
-    views = _split_on_map_camera(radiance_map, args.data or args.data_option, args.downscale, args.split, args.stride)
+    views = _split_on_map_camera(radiance_map, args.data or args.data_option, args.downscale, args.split, args.stride, args.poses)
     scores = evaluate_held_out(radiance_map.render_rays, views, radiance_map.reference_poses(), device)
     if args.json:
         print(json.dumps(scores))
