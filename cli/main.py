@@ -33,6 +33,7 @@ class Command:
 
 COMMANDS: dict[str, Command] = {
     "eval": Command("the paper's experiments (single image, global, tracking)", lambda: importlib.import_module("locnerf_cli.eval")),
+    "odometry": Command("RGB-D odometry of a data set's frames as a TUM trajectory", lambda: importlib.import_module("locnerf_cli.odometry")),
     "localize": Command("single-image localization trials (paper protocols)", lambda: importlib.import_module("locnerf_cli.localize")),
     "map": Command("build, evaluate, render and describe map files", lambda: importlib.import_module("locnerf_cli.map")),
     "bench": Command(
@@ -41,10 +42,13 @@ COMMANDS: dict[str, Command] = {
     "run": Command("run one service (ingest, filter, worker, router)", lambda: importlib.import_module("locnerf_cli.run")),
     "up": Command("start ingest, filter and worker(s) locally; Ctrl-C stops them", lambda: importlib.import_module("locnerf_cli.up")),
     "echo": Command("print a topic (pose)", lambda: importlib.import_module("locnerf_cli.echo")),
+    "view": Command("watch a running system in rerun (pip install 'locnerf[view]')", lambda: importlib.import_module("locnerf_cli.view")),
     "send": Command("send a command to the filter", lambda: importlib.import_module("locnerf_cli.send")),
     "loadtest": Command(
         "drive the services with a synthetic stream; rates, latency, jitter, losses, CPU", lambda: importlib.import_module("locnerf_cli.loadtest")
     ),
+    "bag": Command("ROS 2 bags: info (topics, counts, rates), export (a data set as an MCAP bag)", lambda: importlib.import_module("locnerf_cli.bag")),
+    "record": Command("record the filter's ROS 2 outputs and its sensor topics into an MCAP bag", lambda: importlib.import_module("locnerf_cli.record")),
     "certs": Command("a test CA and per-service TLS certificates (CN = role) for Zenoh", lambda: importlib.import_module("locnerf_cli.certs")),
     "fuzz": Command(
         "hostile payloads on every subscribed key of running services; checks counts, memory, pose rate",

@@ -59,6 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--worker-config", type=Path, help="TOML for the workers (WorkerConfig)")
     parser.add_argument("--logs", type=Path, default=Path("out/up/logs"), help="folder for the services' logs")
     parser.add_argument("--plot", type=Path, help="write a PNG of trajectory and error here at the end")
+    parser.add_argument("--view", action="store_true", help="start `locnerf view` beside the services (pip install 'locnerf[view]')")
+    parser.add_argument("--save", type=Path, help="with --view: the view records to this .rrd file instead of opening the viewer")
     parser.set_defaults(func=run)
 
 
@@ -230,11 +232,22 @@ def _finished(record: RunRecord, args: argparse.Namespace, now: float) -> bool:
     return args.until_updates > 0 and merged >= args.until_updates
 
 
+def start_view(supervisor: Any, args: argparse.Namespace, endpoint: str, map_spec: str) -> None:
+    """``locnerf view`` on ``endpoint`` as the supervised process ``view`` (log ``view.log``), drawing ``map_spec``."""
+    from locnerf_cli.view import import_rerun
+
+    import_rerun()  # a clear error here rather than a failed process
+    command = [sys.executable, "-m", "locnerf_cli.main", "-v", "view", "--connect", endpoint, "--robot-id", args.robot_id, "--map", map_spec]
+    supervisor.start("view", command + (["--save", str(args.save.resolve())] if args.save is not None else []))
+
+
 def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise LocnerfInputError(f"--workers {args.workers}: expected at least 1")
     if args.until_updates < 0:
         raise LocnerfInputError(f"--until-updates {args.until_updates}: expected 0 (no limit) or more")
+    if args.save is not None and not args.view:
+        raise LocnerfInputError(f"--save {args.save}: expected --view too (the view writes the recording)")
     configs = up_configs(args)
     hub = LocalHub(args.logs, port=args.port)
     inbox = Inbox(capacity=4096)
@@ -248,6 +261,8 @@ def run(args: argparse.Namespace) -> int:
     exit_code = 0
     _interrupt_on_signals()
     try:
+        if args.view:
+            start_view(hub.supervisor, args, hub.endpoint, configs.worker.map)
         start_services(hub.supervisor, configs)
         while True:
             item = inbox.get(timeout=0.1)

@@ -34,17 +34,20 @@ def map_identity(radiance_map: RadianceMap) -> str:
     return checksum
 
 
-def target_views(radiance_map: RadianceMap, count: int, generator: torch.Generator) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
-    """``count`` (true pose (4, 4) float64, image (H, W, 3)) pairs rendered by the map itself.
+def viewpoints(radiance_map: RadianceMap, count: int, generator: torch.Generator) -> list[torch.Tensor]:
+    """``count`` camera poses (4, 4) float64 in the map frame from which the map is seen well.
 
     The world draws random plausible poses; a map file uses the camera poses it was built from,
-    in a seeded random order.
+    in a seeded random order (repeating them when it has fewer than ``count``).
     """
     if isinstance(radiance_map, ProceduralWorld):
-        poses = [radiance_map.sample_camera_pose(generator) for _ in range(count)]
-    else:
-        stored = radiance_map.reference_poses()
-        order = torch.randperm(stored.shape[0], generator=generator)
-        poses = [stored[order[i % len(order)]].double() for i in range(count)]
-    for pose in poses:
+        return [radiance_map.sample_camera_pose(generator) for _ in range(count)]
+    stored = radiance_map.reference_poses()
+    order = torch.randperm(stored.shape[0], generator=generator)
+    return [stored[order[i % len(order)]].double() for i in range(count)]
+
+
+def target_views(radiance_map: RadianceMap, count: int, generator: torch.Generator) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+    """``count`` (true pose (4, 4) float64, image (H, W, 3)) pairs rendered by the map itself, from :func:`viewpoints`."""
+    for pose in viewpoints(radiance_map, count, generator):
         yield pose, render_image(radiance_map.render_rays, pose.to(radiance_map.device, torch.float32), radiance_map.default_intrinsics)
