@@ -18,13 +18,16 @@ import time
 from collections.abc import Callable
 
 import torch
+from torch.profiler import record_function
 
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.field.map_file import load_map
 from locnerf.field.nerf_pytorch import NerfMLP, NerfPytorchMap
+from locnerf.field.protocol import surface_renderer
+from locnerf.filter.measurement import particle_log_likelihoods
 from locnerf.render.rays import rays_from_poses_and_pixels
-from locnerf_cli import bench_filter, bench_world
+from locnerf_cli import bench_filter, bench_render, bench_world
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,22 +42,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     render.add_argument("--device", default="auto")
     render.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the services use 1)")
     render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--cloud", choices=bench_render.CLOUDS, default="views", help="particle poses (cli.bench_render): views, converged or spread")
+    render.add_argument("--depth", action="store_true", help="also time the surface render (the depth term's rays) on the same rays")
+    render.add_argument(
+        "--marcher", choices=("fused", "torch"), default="fused", help="grid maps on the CPU: compiled per-ray loop, or the batched torch marcher (GPUs)"
+    )
+    render.add_argument("--profile", action="store_true", help="also print the update step's CPU time by stage (torch.profiler)")
     render.add_argument("--json", action="store_true", help="print JSON")
     render.set_defaults(func=run_render)
     bench_world.add_target(targets)
     bench_filter.add_target(targets)
 
 
-def _update_rays(radiance_map, particles: int, pixels: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """Rays of one update step: reference poses jittered by ~2 cm / ~1°, random pixels: (P·M, 3) x2."""
-    poses = radiance_map.reference_poses().float()
-    choice = torch.randint(0, len(poses), (particles,), generator=generator)
-    T_world_cam = poses[choice].clone()
-    T_world_cam[:, :3, 3] += 0.02 * torch.randn(particles, 3, generator=generator)
+def _update_poses_and_pixels(radiance_map, cloud: str, particles: int, pixels: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Poses (N, 4, 4) of the cloud (:func:`bench_render.cloud_poses`) and M random integer pixels (M, 2) of one update step."""
+    T_world_cam = bench_render.cloud_poses(radiance_map, cloud, particles, generator)
     intrinsics = radiance_map.default_intrinsics
     uv = torch.rand(pixels, 2, generator=generator) * torch.tensor([intrinsics.width - 1.0, intrinsics.height - 1.0])
-    origins, directions = rays_from_poses_and_pixels(T_world_cam, uv.round(), intrinsics)
-    return origins.reshape(-1, 3), directions.reshape(-1, 3)
+    return T_world_cam, uv.round()
 
 
 def _seconds_per_call(function: Callable[[], torch.Tensor], repeats: int, device: torch.device) -> float:
@@ -77,10 +82,18 @@ def run_render(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed)
     generator = torch.Generator().manual_seed(args.seed)
     radiance_map = load_map(args.map, device)
-    origins, directions = _update_rays(radiance_map, args.particles, args.pixels, generator)
-    origins, directions = origins.to(device), directions.to(device)
+    if hasattr(radiance_map, "field"):
+        radiance_map.field.fused_march = args.marcher == "fused"
+    poses, pixels = _update_poses_and_pixels(radiance_map, args.cloud, args.particles, args.pixels, generator)
+    poses, pixels = poses.to(device), pixels.to(device)
+    intrinsics = radiance_map.default_intrinsics
+    origins, directions = (rays.reshape(-1, 3) for rays in rays_from_poses_and_pixels(poses, pixels, intrinsics))
     rays = len(origins)
     update_seconds = _seconds_per_call(lambda: radiance_map.render_rays(origins, directions), args.repeats, device)
+    render_surface = surface_renderer(radiance_map) if args.depth else None
+    if args.depth and render_surface is None:
+        raise LocnerfInputError(f"--depth: the map {args.map} cannot place surfaces (NDC or MLP map); expected a metric grid map or the world")
+    surface_seconds = _seconds_per_call(lambda: render_surface(origins, directions), args.repeats, device) if render_surface else None
     mlp = NerfPytorchMap(NerfMLP().to(device).eval(), NerfMLP().to(device).eval(), radiance_map.info, white_background=False)
     subset = min(args.mlp_rays, rays)
     mlp_seconds = _seconds_per_call(lambda: mlp.render_rays(origins[:subset], directions[:subset]), 1, device)
@@ -91,10 +104,13 @@ def run_render(args: argparse.Namespace) -> int:
         "threads": torch.get_num_threads(),
         "particles": args.particles,
         "pixels": args.pixels,
+        "cloud": args.cloud,
+        "marcher": args.marcher,
         "rays": rays,
         "update_seconds": update_seconds,
         "update_hz": 1.0 / update_seconds,
         "rays_per_second": rays / update_seconds,
+        **({"surface_seconds": surface_seconds, "colour_and_depth_seconds": update_seconds + surface_seconds} if surface_seconds else {}),
         "mlp_rays_measured": subset,
         "mlp_rays_per_second": mlp_rays_per_second,
         "mlp_update_hz": mlp_rays_per_second / rays,
@@ -102,9 +118,22 @@ def run_render(args: argparse.Namespace) -> int:
         "speedup_vs_mlp": (rays / update_seconds) / mlp_rays_per_second,
         "note": f"MLP timed on {subset} of the {rays} rays (scaled)" if subset < rays else "MLP timed on all rays",
     }
+    if args.profile:
+        observed = torch.rand(args.pixels, 3, generator=generator).to(device)
+
+        def update() -> None:
+            particle_log_likelihoods(poses, pixels, observed, intrinsics, radiance_map.render_rays)
+            if render_surface is not None:
+                with record_function("update: surface render (depth rays)"):
+                    render_surface(origins, directions)
+
+        result["profile_ms"] = bench_render.stage_profile(update, args.repeats)
     if args.json:
         print(json.dumps(result))
     else:
         for key, value in result.items():
-            print(f"{key:>24}: {value:.4g}" if isinstance(value, float) and math.isfinite(value) else f"{key:>24}: {value}")
+            if key != "profile_ms":
+                print(f"{key:>24}: {value:.4g}" if isinstance(value, float) and math.isfinite(value) else f"{key:>24}: {value}")
+        for stage, milliseconds in result.get("profile_ms", {}).items():
+            print(f"{milliseconds:10.2f} ms  {stage}")
     return 0

@@ -19,6 +19,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from torch.profiler import record_function
 
 from locnerf.field.encoding import frequency_encoding
 from locnerf.field.grid_march import SKIP_DISTANCE_CAP, SkipTable, chebyshev_distance, march
@@ -372,14 +373,15 @@ class GridField(torch.nn.Module):
         field-to-vertex scale (3,) of rays (R, 3) x2: the sampling of :meth:`render`, marched by the
         compiled per-ray loop on the CPU (:mod:`grid_march_fused`, unless ``fused_march`` is False)
         and by the batched torch marcher elsewhere (:func:`grid_march.march`)."""
-        cells = torch.tensor([r - 1 for r in self._resolution], device=origins.device, dtype=origins.dtype)
-        to_vertices = cells / (self.box[1] - self.box[0])
-        t_entry, t_exit = ray_box_intersection(origins, directions, self.occupied_box)
-        dt = self.config.step_ratio * self.config.render_step_factor * self.ray_parameter_per_voxel(directions)
-        # Sample k at t_entry + (k + ½)·dt lies before the exit while k < (t_exit - t_entry)/dt - ½.
-        counts = ((t_exit - t_entry) / dt - 0.5).clamp_min(0).ceil().long()
-        start = (origins + (t_entry + 0.5 * dt)[:, None] * directions - self.box[0]) * to_vertices
-        step = dt[:, None] * directions * to_vertices
+        with record_function("render: ray setup (box, lattice)"):
+            cells = torch.tensor([r - 1 for r in self._resolution], device=origins.device, dtype=origins.dtype)
+            to_vertices = cells / (self.box[1] - self.box[0])
+            t_entry, t_exit = ray_box_intersection(origins, directions, self.occupied_box)
+            dt = self.config.step_ratio * self.config.render_step_factor * self.ray_parameter_per_voxel(directions)
+            # Sample k at t_entry + (k + ½)·dt lies before the exit while k < (t_exit - t_entry)/dt - ½.
+            counts = ((t_exit - t_entry) / dt - 0.5).clamp_min(0).ceil().long()
+            start = (origins + (t_entry + 0.5 * dt)[:, None] * directions - self.box[0]) * to_vertices
+            step = dt[:, None] * directions * to_vertices
         if self.fused_march and origins.device.type == "cpu":
             composited, log_transmittance = fused_march(
                 start,
@@ -407,12 +409,13 @@ class GridField(torch.nn.Module):
 
     def _final_colour(self, composited: torch.Tensor, log_transmittance: torch.Tensor, view_directions: torch.Tensor) -> torch.Tensor:
         """rgb (R, 3) in [0, 1] from composited (R, 3 + F) channels; rays that met nothing are the background (or black)."""
-        colour = self.background.expand(len(composited), 3).clone() if self.has_background else composited.new_zeros(len(composited), 3)
-        hit = (log_transmittance < 0).nonzero(as_tuple=True)[0]
-        for chunk in hit.split(DECODE_CHUNK):
-            opacity = -torch.expm1(log_transmittance[chunk])
-            colour[chunk] = self._ray_colour(composited[chunk, :3], composited[chunk, 3:], opacity, view_directions[chunk])
-        return colour.clamp(0.0, 1.0)
+        with record_function("render: view decoder (MLP per ray)"):
+            colour = self.background.expand(len(composited), 3).clone() if self.has_background else composited.new_zeros(len(composited), 3)
+            hit = (log_transmittance < 0).nonzero(as_tuple=True)[0]
+            for chunk in hit.split(DECODE_CHUNK):
+                opacity = -torch.expm1(log_transmittance[chunk])
+                colour[chunk] = self._ray_colour(composited[chunk, :3], composited[chunk, 3:], opacity, view_directions[chunk])
+            return colour.clamp(0.0, 1.0)
 
     @torch.no_grad()
     def render(self, origins: torch.Tensor, directions: torch.Tensor, view_directions: torch.Tensor) -> torch.Tensor:

@@ -19,6 +19,7 @@ import math
 from collections.abc import Callable
 
 import torch
+from torch.profiler import record_function
 
 Shader = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """positions (N, 3) in vertex coordinates -> optical depth σ·δ (N,), channels to composite (N, C)."""
@@ -148,24 +149,28 @@ def march(
     stop_log = math.log(termination_transmittance)
     active = (counts > 0).nonzero(as_tuple=True)[0]
     while len(active):
-        _skip_empty(table, rays_table, index, active, min_jump)
-        rows, at = rays_table[active], index[active]
-        inside = (at < rows[:, _COUNT]).nonzero(as_tuple=True)[0]
-        active, rows, at = active[inside], rows[inside], at[inside]
-        if not len(active):
-            break
-        sample = at[:, None] + offsets  # (A, B)
-        last = rows[:, _COUNT, None] - 1.0
-        shifted = torch.addcmul(rows[:, None, _START], torch.minimum(sample, last)[..., None], rows[:, None, _STEP])  # (A, B, 3)
-        local, column = ((sample <= last) & (table(shifted) < 0)).nonzero(as_tuple=True)
-        depth_values, values = shade(shifted[local, column] - 1.5)
-        depth = torch.zeros(len(active), block, device=device, dtype=dtype).index_put_((local, column), depth_values)
-        log_before = log_transmittance[active, None] - (torch.cumsum(depth, dim=-1) - depth)  # log T_k
-        weights = torch.exp(log_before[local, column]) * -torch.expm1(-depth_values)
-        composited.index_add_(0, active[local], values.mul_(weights[:, None]))
-        log_after = log_before[:, -1] - depth[:, -1]
-        at = at + block
-        log_transmittance[active] = log_after
-        index[active] = at
-        active = active[((log_after > stop_log) & (at < rows[:, _COUNT])).nonzero(as_tuple=True)[0]]
+        with record_function("march: empty-space skip"):
+            _skip_empty(table, rays_table, index, active, min_jump)
+        with record_function("march: block samples, occupancy test"):
+            rows, at = rays_table[active], index[active]
+            inside = (at < rows[:, _COUNT]).nonzero(as_tuple=True)[0]
+            active, rows, at = active[inside], rows[inside], at[inside]
+            if not len(active):
+                break
+            sample = at[:, None] + offsets  # (A, B)
+            last = rows[:, _COUNT, None] - 1.0
+            shifted = torch.addcmul(rows[:, None, _START], torch.minimum(sample, last)[..., None], rows[:, None, _STEP])  # (A, B, 3)
+            local, column = ((sample <= last) & (table(shifted) < 0)).nonzero(as_tuple=True)
+        with record_function("march: gather, shade"):
+            depth_values, values = shade(shifted[local, column] - 1.5)
+        with record_function("march: composite, terminate"):
+            depth = torch.zeros(len(active), block, device=device, dtype=dtype).index_put_((local, column), depth_values)
+            log_before = log_transmittance[active, None] - (torch.cumsum(depth, dim=-1) - depth)  # log T_k
+            weights = torch.exp(log_before[local, column]) * -torch.expm1(-depth_values)
+            composited.index_add_(0, active[local], values.mul_(weights[:, None]))
+            log_after = log_before[:, -1] - depth[:, -1]
+            at = at + block
+            log_transmittance[active] = log_after
+            index[active] = at
+            active = active[((log_after > stop_log) & (at < rows[:, _COUNT])).nonzero(as_tuple=True)[0]]
     return composited, log_transmittance

@@ -37,6 +37,7 @@ import math
 import numba
 import numpy as np
 import torch
+from torch.profiler import record_function
 
 from locnerf.field.grid_march import JUMP_MARGIN, SkipTable
 
@@ -177,24 +178,29 @@ def _counting_order(keys: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _march_serial(start, step, counts, gap, row, plane, grid, cells, shift, scale, stop, with_position, out, log_transmittance, brick) -> None:  # noqa: ANN001
-    rays = start.shape[0]
-    first, keys = np.empty(rays, dtype=np.int64), np.empty(rays, dtype=np.int64)
-    for ray in range(rays):
+def _first_hits_serial(start, step, counts, gap, row, plane, cells, brick, first, keys) -> None:  # noqa: ANN001
+    for ray in range(start.shape[0]):
         first[ray], keys[ray] = _first_occupied(ray, start, step, counts, gap, row, plane, cells, brick)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _first_hits_parallel(start, step, counts, gap, row, plane, cells, brick, first, keys, chunks) -> None:  # noqa: ANN001
+    rays = start.shape[0]
+    for chunk in numba.prange(chunks):
+        for ray in range(chunk * rays // chunks, (chunk + 1) * rays // chunks):
+            first[ray], keys[ray] = _first_occupied(ray, start, step, counts, gap, row, plane, cells, brick)
+
+
+@numba.njit(cache=True, nogil=True)
+def _march_serial(order, first, start, step, counts, gap, row, plane, grid, cells, shift, scale, stop, with_position, out, log_transmittance) -> None:  # noqa: ANN001
     values = np.empty(grid.shape[1], dtype=np.float64)
-    for ray in _counting_order(keys):
+    for ray in order:
         _march_ray(ray, first[ray], start, step, counts, gap, row, plane, grid, cells, shift, scale, stop, with_position, values, out, log_transmittance)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _march_parallel(start, step, counts, gap, row, plane, grid, cells, shift, scale, stop, with_position, out, log_transmittance, brick, chunks) -> None:  # noqa: ANN001
-    rays = start.shape[0]
-    first, keys = np.empty(rays, dtype=np.int64), np.empty(rays, dtype=np.int64)
-    for chunk in numba.prange(chunks):
-        for ray in range(chunk * rays // chunks, (chunk + 1) * rays // chunks):
-            first[ray], keys[ray] = _first_occupied(ray, start, step, counts, gap, row, plane, cells, brick)
-    order = _counting_order(keys)
+def _march_parallel(order, first, start, step, counts, gap, row, plane, grid, cells, shift, scale, stop, with_position, out, log_transmittance, chunks) -> None:  # noqa: ANN001
+    rays = order.shape[0]
     for chunk in numba.prange(chunks):
         values = np.empty(grid.shape[1], dtype=np.float64)
         for i in range(chunk * rays // chunks, (chunk + 1) * rays // chunks):
@@ -242,27 +248,30 @@ def fused_march(
     rays, channels = start.shape[0], grid.shape[1]
     out = np.empty((rays, channels - 1 + (3 if with_position else 0)), dtype=np.float32)
     log_transmittance = np.empty(rays, dtype=np.float32)
-    arguments = (
+    first, keys = np.empty(rays, dtype=np.int64), np.empty(rays, dtype=np.int64)
+    lattice = (
         np.ascontiguousarray(start.detach().numpy(), dtype=np.float32),
         np.ascontiguousarray(step.detach().numpy(), dtype=np.float32),
         np.ascontiguousarray(counts.numpy(), dtype=np.int64),
         table.gap.numpy(),
         table.row,
         table.plane,
-        grid.detach().numpy(),
-        np.array([r - 1 for r in resolution], dtype=np.int64),
-        float(shift),
-        float(scale),
-        float(termination_transmittance),
-        bool(with_position),
-        out,
-        log_transmittance,
-        _brick_bits(resolution),
     )
-    threads = torch.get_num_threads()
+    cells = np.array([r - 1 for r in resolution], dtype=np.int64)
+    shading = (grid.detach().numpy(), cells, float(shift), float(scale), float(termination_transmittance), bool(with_position), out, log_transmittance)
+    threads = min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)
+    chunks = min(rays, threads * _CHUNKS_PER_THREAD)
     if threads > 1 and rays > 1:
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-        _march_parallel(*arguments, min(rays, threads * _CHUNKS_PER_THREAD))
-    else:
-        _march_serial(*arguments)
+        numba.set_num_threads(threads)
+    with record_function("march: first occupied sample, ray order"):
+        if threads > 1 and rays > 1:
+            _first_hits_parallel(*lattice, cells, _brick_bits(resolution), first, keys, chunks)
+        else:
+            _first_hits_serial(*lattice, cells, _brick_bits(resolution), first, keys)
+        order = _counting_order(keys)
+    with record_function("march: skip, gather, shade, composite"):
+        if threads > 1 and rays > 1:
+            _march_parallel(order, first, *lattice, *shading, chunks)
+        else:
+            _march_serial(order, first, *lattice, *shading)
     return torch.from_numpy(out), torch.from_numpy(log_transmittance)

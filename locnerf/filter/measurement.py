@@ -36,6 +36,7 @@ from typing import Annotated, Literal
 
 import torch
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+from torch.profiler import record_function
 
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import RenderRays
@@ -335,8 +336,10 @@ def particle_log_likelihoods(
     count = pixels.shape[0]
     if observed_rgb.shape != (count, 3):
         raise ValueError(f"observed_rgb: expected shape ({count}, 3) to match the pixels, got {tuple(observed_rgb.shape)}")
-    origins, directions = rays_from_poses_and_pixels(poses, pixels, intrinsics)
-    flat_origins, flat_dirs = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    with record_function("update: rays from poses and pixels"):
+        origins, directions = rays_from_poses_and_pixels(poses, pixels, intrinsics)
+        flat_origins, flat_dirs = origins.reshape(-1, 3), directions.reshape(-1, 3)
     with torch.no_grad():
         rendered = torch.cat([render_rays(flat_origins[i : i + ray_chunk], flat_dirs[i : i + ray_chunk]) for i in range(0, len(flat_origins), ray_chunk)])
-    return photometric_log_likelihoods(rendered.reshape(poses.shape[0], count, 3), observed_rgb, exponent, exposure_gain_range)
+    with record_function("update: likelihood"):
+        return photometric_log_likelihoods(rendered.reshape(poses.shape[0], count, 3), observed_rgb, exponent, exposure_gain_range)
