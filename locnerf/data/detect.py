@@ -12,11 +12,13 @@ from locnerf.data.seven_scenes import DEFAULT_DOWNSCALE as SEVEN_SCENES_DOWNSCAL
 from locnerf.data.seven_scenes import read_seven_scenes
 from locnerf.data.sfm_poses import SFM_FOLDER, check_pose_source
 from locnerf.data.transforms_json import read_nerf_synthetic, read_nerfstudio
+from locnerf.data.tum_rgbd import DEFAULT_DOWNSCALE as TUM_DOWNSCALE
+from locnerf.data.tum_rgbd import is_tum_rgbd, read_tum_rgbd
 from locnerf.errors import DatasetError
 
 
 def dataset_format(path: str | Path) -> str:
-    """``llff`` | ``nerf_synthetic`` | ``nerfstudio`` | ``seven_scenes`` for a data-set folder (or a transforms.json).
+    """``llff`` | ``nerf_synthetic`` | ``nerfstudio`` | ``seven_scenes`` | ``tum_rgbd`` for a data-set folder (or a transforms.json).
 
     Raises:
         FileNotFoundError / DatasetError: naming the path when nothing recognisable is there.
@@ -34,9 +36,11 @@ def dataset_format(path: str | Path) -> str:
         return "nerfstudio"
     if (path / "TrainSplit.txt").is_file() or (path / "TestSplit.txt").is_file():
         return "seven_scenes"
+    if is_tum_rgbd(path):
+        return "tum_rgbd"
     raise DatasetError(
         f"data set {path}: expected poses_bounds.npy (LLFF), transforms_<split>.json (NeRF-synthetic), "
-        "transforms.json (nerfstudio) or TrainSplit.txt/TestSplit.txt (7-Scenes)"
+        "transforms.json (nerfstudio), TrainSplit.txt/TestSplit.txt (7-Scenes) or rgb.txt, depth.txt and groundtruth.txt (TUM RGB-D)"
     )
 
 
@@ -54,8 +58,8 @@ def read_dataset(
     Args:
         path: data-set folder (or a nerfstudio ``transforms.json``).
         split: ``train`` | ``test`` | ``val`` (NeRF-synthetic) | ``all`` (LLFF, nerfstudio, 7-Scenes);
-            LLFF and nerfstudio hold out every 8th image as ``test``; 7-Scenes uses its split files.
-        downscale: image size divisor; default 8 for LLFF (``images_8``), 4 for 7-Scenes, 1 otherwise.
+            LLFF, nerfstudio and TUM RGB-D hold out every 8th image as ``test``; 7-Scenes uses its split files.
+        downscale: image size divisor; default 8 for LLFF (``images_8``), 4 for 7-Scenes and TUM RGB-D, 1 otherwise.
         skip_missing: NeRF-synthetic only: leave out frames whose image is absent.
         stride: keep every ``stride``-th frame of the split.
         poses: 7-Scenes: ``dslam`` (the frames' own poses) or ``sfm`` (the SfM pseudo ground truth,
@@ -67,6 +71,8 @@ def read_dataset(
     kind = dataset_format(path)
     if kind == "seven_scenes":
         return read_seven_scenes(path, split=split, downscale=downscale or SEVEN_SCENES_DOWNSCALE, stride=stride, poses=poses, T_depth_colour=T_depth_colour)
+    if kind == "tum_rgbd" and check_pose_source(poses) == "dslam":
+        return read_tum_rgbd(path, split=split, downscale=downscale or TUM_DOWNSCALE, stride=stride)
     if check_pose_source(poses) != "dslam":
         raise DatasetError(f"--poses {poses}: {path} is a {kind} data set, which has its own poses only; --poses sfm reads a 7-Scenes folder's {SFM_FOLDER}/")
     if kind == "llff":

@@ -1,0 +1,106 @@
+"""The TUM RGB-D layout, on a small folder written here from the procedural world: association by stamp,
+depth in 1/5000 m, poses from groundtruth.txt, and the folder used where 7-Scenes is (read_dataset,
+the ingest's replay, ``locnerf odometry``)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from locnerf.data.detect import dataset_format, read_dataset
+from locnerf.data.trajectory_files import read_trajectory, write_tum
+from locnerf.data.tum_rgbd import associate, read_tum_rgbd
+from locnerf.errors import DatasetError
+from locnerf.filter.depth_measurement import render_depth_image
+from locnerf.geometry import opengl_to_opencv, relative_pose, rotation_error_deg, se3_exp, translation_error
+from locnerf.render import PinholeIntrinsics
+from locnerf.sim.events import ImageEvent
+from locnerf.sim.world import ProceduralWorld
+from locnerf_cli.main import main
+from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
+
+CAMERA = PinholeIntrinsics.from_fov(160, 120, math.radians(60))
+FRAMES = 9
+T0 = 1305031102.175304
+
+
+@pytest.fixture(scope="module")
+def tum_folder(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, torch.Tensor]:
+    """9 colour frames at 30 Hz; depth stamped 4-7 ms off (frame 4 25 ms off: no depth); ground truth at 100 Hz, OpenCV axes."""
+    folder = tmp_path_factory.mktemp("tum")
+    world = ProceduralWorld.default()
+    start = world.sample_camera_pose(torch.Generator().manual_seed(2)).double()
+    step = torch.tensor([0.004, -0.006, 0.003, 0.012, -0.004, -0.015], dtype=torch.float64) * 30  # per second
+    pose_at = lambda t: start @ se3_exp(step * (t - T0))  # noqa: E731
+    (folder / "rgb").mkdir()
+    (folder / "depth").mkdir()
+    rgb_lines, depth_lines = ["# color images"], ["# depth maps"]
+    for k in range(FRAMES):
+        stamp = T0 + k / 30
+        pose = pose_at(stamp)
+        rgb = (world.render_image(pose.float(), CAMERA).clamp(0, 1) * 255 + 0.5).to(torch.uint8).numpy()
+        cv2.imwrite(str(folder / f"rgb/{stamp:.6f}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        rgb_lines.append(f"{stamp:.6f} rgb/{stamp:.6f}.png")
+        depth_stamp = stamp + (0.025 if k == 4 else 0.004 + 0.001 * (k % 4))
+        depth = render_depth_image(world.render_surface, pose, CAMERA).depth.double().numpy()
+        cv2.imwrite(str(folder / f"depth/{depth_stamp:.6f}.png"), np.round(depth * 5000).astype(np.uint16))
+        depth_lines.append(f"{depth_stamp:.6f} depth/{depth_stamp:.6f}.png")
+    (folder / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (folder / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    truth_stamps = T0 - 0.005 + np.arange(40) / 100
+    write_tum(folder / "groundtruth.txt", truth_stamps, opengl_to_opencv(torch.stack([pose_at(t) for t in truth_stamps])))
+    matrix = np.array([[CAMERA.fx, 0, CAMERA.cx], [0, CAMERA.fy, CAMERA.cy], [0, 0, 1]])
+    np.savetxt(folder / "camera-intrinsics.txt", matrix)
+    return folder, torch.stack([pose_at(T0 + k / 30) for k in range(FRAMES)])
+
+
+def test_association_picks_the_nearest_depth_within_20_ms() -> None:
+    assert associate(np.array([0.0, 0.1, 0.2, 0.3]), np.array([0.005, 0.09, 0.25, 0.31])).tolist() == [0, 1, -1, 3]
+
+
+def test_frames_read_with_their_depth_and_ground_truth(tum_folder) -> None:
+    folder, poses = tum_folder
+    assert dataset_format(folder) == "tum_rgbd"
+    frames = read_dataset(folder, split="all", downscale=1)
+    kept = [k for k in range(FRAMES) if k != 4]  # frame 4's depth is 25 ms away
+    assert frames.indices == kept and len(frames) == 8
+    # Ground truth interpolated at each colour stamp (the 100 Hz samples straddle it), converted to OpenGL axes.
+    assert float(translation_error(frames.T_world_cam, poses[kept]).max()) < 1e-6
+    assert float(rotation_error_deg(frames.T_world_cam, poses[kept]).max()) < 1e-4
+    expected = render_depth_image(ProceduralWorld.default().render_surface, poses[0], CAMERA).depth.double()
+    assert torch.allclose(frames.depths[0].double(), expected, atol=0.5 / 5000 + 1e-6)  # 1/5000 m quantisation
+    assert frames.intrinsics == CAMERA and frames.depth_intrinsics == CAMERA
+    assert read_tum_rgbd(folder, "test", downscale=1).indices == [0]  # every 8th of the 8 associated frames
+    assert len(read_tum_rgbd(folder, "train", downscale=2)) == 7
+
+
+def test_the_ingest_replays_it_and_locnerf_odometry_tracks_it(tum_folder, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    folder, poses = tum_folder
+    events = list(sensor_events(IngestConfig(source="replay", replay={"path": str(folder), "split": "all", "downscale": 1, "frame_rate": 30.0})))
+    images = [e for e in events if isinstance(e, ImageEvent)]
+    assert len(images) == 8 and images[0].depth is not None and images[0].depth.millimetres.dtype == np.uint16
+    out = tmp_path / "odometry.txt"
+    assert main(["odometry", str(folder), "--split", "all", "--downscale", "1", "--every", "1", "--out", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["poses"] == 8 and report["gaps"] == 0
+    trajectory = read_trajectory(out)
+    truth = relative_pose(poses[:1], poses[[k for k in range(FRAMES) if k != 4]])
+    assert float(translation_error(trajectory.poses, truth).max()) < 0.005 and float(rotation_error_deg(trajectory.poses, truth).max()) < 0.2
+    assert report["drift"]["ape_translation_max"] < 0.005
+
+
+def test_a_malformed_list_is_refused_naming_file_and_line(tmp_path: Path) -> None:
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+        (tmp_path / name).write_text("# header\n")
+    (tmp_path / "rgb.txt").write_text("# header\n1.0 rgb/1.png\n0.5 rgb/0.png\n")
+    with pytest.raises(DatasetError, match=r"rgb\.txt, line 3: stamp 0\.5 is not after 1\.0"):
+        read_tum_rgbd(tmp_path)
+    (tmp_path / "rgb.txt").write_text("1.0\n")
+    with pytest.raises(DatasetError, match=r"rgb\.txt, line 1: '1\.0', expected 'stamp filename'"):
+        read_tum_rgbd(tmp_path)
