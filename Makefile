@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet --upgrade pip
 	# The CPU build of torch 2.13.0 is pinned: an unpinned torch pulls several GB of CUDA wheels.
 	$(BIN)/pip install --quiet "torch==2.13.0"
-	$(BIN)/pip install --quiet -e ".[test,view]"
+	$(BIN)/pip install --quiet -e ".[test,view,sfm]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -14,9 +14,31 @@ from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.ndc import ndc_rays_from_world_rays, rays_facing_scene
 
 NDC_NEAR_PLANE = 1.0
+METRIC_FRAME_KEY = "metric_frame"
+"""Metadata entry of a map built by structure from motion: whether its frame is metric and how its scale and up axis
+were obtained (``metric``, ``scale``, ``scale_sources``, ``gravity``, ``up``, ``sfm_to_map``; :mod:`locnerf.sfm.pipeline`).
+Maps built from posed data sets have none: their frame is the data set's own."""
 
 FieldRenderer = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 """field-space origins (R, 3), field-space directions (R, 3), world-frame directions (R, 3) -> rgb (R, 3)."""
+
+
+def metric_frame_problem(metadata: dict[str, Any]) -> str | None:
+    """Why a map's frame cannot take odometry in metres, or None when it can.
+
+    Only a map whose ``metric_frame`` entry says ``metric: false`` (built by SfM without a scale source) is
+    refused; maps without the entry (built from posed data sets, and every map file written before it) are
+    in their data set's frame, as before.
+    """
+    frame = metadata.get(METRIC_FRAME_KEY)
+    if not isinstance(frame, dict) or frame.get("metric", True):
+        return None
+    return (
+        "the map was built by structure from motion without a metric scale (its units are the reconstruction's, not metres), so odometry in "
+        "metres would move the particles by the wrong distances; rebuild it with a scale source: depth images in the capture, "
+        "--trajectory FILE (odometry/VIO recorded with the capture), --known-distance FRAME_A FRAME_B METRES or --scale METRES_PER_UNIT "
+        "(locnerf map build CAPTURE --sfm ..., docs/MAPS.md)"
+    )
 
 
 @dataclass

@@ -14,6 +14,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.config import PRESETS, load_config, preset
 from locnerf.devices import resolve_device
+from locnerf.errors import ConfigError
+from locnerf.field.map_info import metric_frame_problem
 from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import map_identity, open_map
@@ -51,6 +53,9 @@ def build_loop(config: FilterProcessConfig) -> FilterLoop:
     """The filter loop for ``config`` (loads the map for its frame and bounds)."""
     device = resolve_device(config.device)
     radiance_map = open_map(config.map, device)
+    problem = metric_frame_problem(getattr(radiance_map, "metadata", {}))
+    if problem is not None:
+        raise ConfigError(f"map {config.map}: {problem}")
     normalization = radiance_map.normalization
     bounds = radiance_map.camera_bounds()
     region = SearchRegion(low=tuple(bounds[0].tolist()), high=tuple(bounds[1].tolist()), up=normalization.up)

@@ -1,0 +1,125 @@
+"""The whole capture-to-map path with real pycolmap on a small RGB-D capture of the procedural world, and its bad inputs.
+
+The capture (12 frames, 240×180, exact depth) is rendered once per module; structure from motion on it
+takes about 15 s on 2 cores. Poses are scored against the rendering poses after one similarity fit.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from locnerf.errors import ConfigError, DatasetError, LocnerfInputError
+from locnerf.field.grid import GridFieldConfig
+from locnerf.field.map_file import load_map, save_map
+from locnerf.field.map_info import METRIC_FRAME_KEY, metric_frame_problem
+from locnerf.geometry.similarity import fit_similarity_to_poses
+from locnerf.sfm.alignment import alignment_errors
+from locnerf.sfm.capture import read_capture
+from locnerf.sfm.pipeline import MetricOptions, posed_capture
+from locnerf.train import BuildConfig, build_map
+from tests.sfm.world_capture import FRAMES, write_world_capture
+
+pytest.importorskip("pycolmap")
+
+TINY_BUILD = BuildConfig(steps=3, field=GridFieldConfig(voxels=24**3), surface_distance=None, threads=1)
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    """(capture folder, cache folder, true poses (K, 4, 4)) of the world's RGB-D capture."""
+    root = tmp_path_factory.mktemp("world_capture")
+    truth = write_world_capture(root / "capture")
+    return root / "capture", root / "cache", truth
+
+
+def _scored(images, truth: torch.Tensor) -> dict:
+    return alignment_errors(images.T_world_cam.double().numpy(), truth.numpy()[images.indices])[1]["summary"]
+
+
+def test_rgbd_capture_to_a_metric_map_and_its_cache(capture, tmp_path):
+    folder, cache, truth = capture
+    images, metadata = posed_capture(folder, cache)
+    assert metadata["sfm"]["posed"] == FRAMES and not metadata["sfm"]["unregistered"] and not metadata["sfm"]["cached"]
+    frame = metadata[METRIC_FRAME_KEY]
+    assert frame["metric"] and frame["scale"]["source"] == "depth" and frame["gravity"]["source"] == "camera_mean"
+    summary = _scored(images, truth)
+    # metric from depth: the fitted similarity to the true (metric) poses has scale 1 within 1 %
+    assert abs(summary["scale_map_to_truth"] - 1.0) < 0.01
+    assert summary["translation_max_m"] < 0.01 and summary["rotation_max_deg"] < 0.5
+    # up from the cameras' mean: the map's +z is the world's up (+y) within 10 degrees (the cameras pitch by -9..-1 degrees)
+    map_up_in_world = fit_similarity_to_poses(images.T_world_cam.double().numpy(), truth.numpy()[images.indices]).rotation @ np.array([0.0, 0.0, 1.0])
+    assert map_up_in_world[1] > np.cos(np.radians(10.0))
+    assert images.depths is not None and images.T_cam_depth is not None
+
+    radiance_map = build_map(images, TINY_BUILD)
+    radiance_map.metadata.update(metadata)
+    path = save_map(radiance_map, tmp_path / "world_sfm.locmap")
+    loaded = load_map(path, "cpu")
+    assert loaded.metadata[METRIC_FRAME_KEY]["metric"] and metric_frame_problem(loaded.metadata) is None
+
+    again, metadata_again = posed_capture(folder, cache)
+    assert metadata_again["sfm"]["cached"] and torch.allclose(again.T_world_cam, images.T_world_cam)
+
+
+def test_known_distance_agrees_with_depth_and_a_wrong_scale_is_refused(capture):
+    folder, cache, truth = capture
+    metres = float(torch.linalg.vector_norm(truth[0, :3, 3] - truth[FRAMES - 1, :3, 3]))
+    images, metadata = posed_capture(folder, cache, MetricOptions(known_distance=("frame-000000", str(FRAMES - 1), metres)))
+    sources = {s["source"]: s["metres_per_sfm_unit"] for s in metadata[METRIC_FRAME_KEY]["scale_sources"]}
+    assert metadata[METRIC_FRAME_KEY]["scale"]["source"] == "known_distance"
+    assert abs(sources["known_distance"] / sources["depth"] - 1.0) < 0.01
+    assert abs(_scored(images, truth)["scale_map_to_truth"] - 1.0) < 0.01
+    with pytest.raises(LocnerfInputError, match=r"scale sources disagree: user .* depth .*more than 5 %"):
+        posed_capture(folder, cache, MetricOptions(scale=1.1 * sources["depth"]))
+    with pytest.raises(LocnerfInputError, match="frame 'frame-000099' has no pose"):
+        posed_capture(folder, cache, MetricOptions(known_distance=("frame-000099", "0", 1.0)))
+
+
+def test_images_without_scale_make_a_non_metric_map_the_filter_refuses(capture, tmp_path, caplog):
+    folder, _, _ = capture
+    plain = tmp_path / "images"
+    plain.mkdir()
+    for k, image in enumerate(sorted((folder / "seq-01").glob("*.color.png"))):
+        shutil.copy(image, plain / f"image{k:03d}.png")
+    cv2.imwrite(str(plain / "image900_blank.png"), np.full((180, 240, 3), 128, np.uint8))
+    with caplog.at_level(logging.WARNING):
+        images, metadata = posed_capture(plain, tmp_path / "cache")
+    assert "image900_blank.png" in metadata["sfm"]["unregistered"]
+    assert "no SIFT features" in metadata["sfm"]["unregistered"]["image900_blank.png"]
+    assert "image900_blank.png: no SIFT features" in caplog.text
+    assert len(images) == FRAMES and images.depths is None
+    assert not metadata[METRIC_FRAME_KEY]["metric"]
+
+    radiance_map = build_map(images, TINY_BUILD)
+    radiance_map.metadata.update(metadata)
+    path = save_map(radiance_map, tmp_path / "non_metric.locmap")
+    from locnerf_services.filter_loop.__main__ import FilterProcessConfig, build_loop
+
+    with pytest.raises(ConfigError, match="without a metric scale.*--known-distance"):
+        build_loop(FilterProcessConfig(map=str(path), device="cpu"))
+
+
+def test_bad_captures_are_refused_by_name(tmp_path):
+    few = tmp_path / "few"
+    few.mkdir()
+    for k in range(2):
+        cv2.imwrite(str(few / f"{k}.png"), np.zeros((20, 30, 3), np.uint8))
+    with pytest.raises(DatasetError, match="2 images, expected at least 3"):
+        read_capture(few, tmp_path / "work")
+    cv2.imwrite(str(few / "2.png"), np.zeros((20, 31, 3), np.uint8))
+    with pytest.raises(DatasetError, match=r"1 images differ in size from 0.png \(30x20\): 2.png \(31x20\)"):
+        read_capture(few, tmp_path / "work")
+    broken = tmp_path / "walk.mp4"
+    broken.write_bytes(b"not a video at all" * 100)
+    with pytest.raises(DatasetError, match="walk.mp4: cannot be opened"):
+        read_capture(broken, tmp_path / "work")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(FileNotFoundError, match="no images"):
+        read_capture(empty, tmp_path / "work")

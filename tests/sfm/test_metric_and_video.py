@@ -1,0 +1,94 @@
+"""Similarity fits, scale sources and their checks, and the picking of video frames (no SfM run: fast)."""
+
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from locnerf.data.trajectory_files import read_trajectory, write_tum
+from locnerf.errors import DatasetError
+from locnerf.geometry import make_pose, so3_exp
+from locnerf.geometry.similarity import Similarity, fit_similarity, fit_similarity_to_poses
+from locnerf.sfm.metric import ScaleEstimate, agreed_scale, fit_to_trajectory, rotation_to_z_up, scale_from_depth
+from locnerf.sfm.video import VideoSelection, select_video_frames, sharpness
+
+
+def _random_similarity(generator: np.random.Generator) -> Similarity:
+    rotation = so3_exp(torch.from_numpy(generator.normal(size=3))).numpy()
+    return Similarity(float(generator.uniform(0.2, 5.0)), rotation, generator.normal(size=3) * 3)
+
+
+def test_similarity_fits_recover_a_known_transform():
+    generator = np.random.default_rng(0)
+    truth = _random_similarity(generator)
+    poses = np.stack([make_pose(so3_exp(torch.from_numpy(generator.normal(size=3))), torch.from_numpy(generator.normal(size=3))).numpy() for _ in range(20)])
+    moved = truth.poses(poses)
+    for fitted in (fit_similarity(poses[:, :3, 3], moved[:, :3, 3]), fit_similarity_to_poses(poses, moved)):
+        assert fitted.scale == pytest.approx(truth.scale, rel=1e-10)
+        np.testing.assert_allclose(fitted.rotation, truth.rotation, atol=1e-10)
+        np.testing.assert_allclose(fitted.translation, truth.translation, atol=1e-9)
+    line = np.outer(np.arange(5.0), [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="collinear"):
+        fit_similarity(line, line)
+
+
+def test_depth_scale_names_disagreeing_images_and_refuses_drift(caplog):
+    ratios = {f"frame{k}": 0.5 * (1 + 0.01 * np.sin(k)) for k in range(20)}
+    ratios["frame7"] = 0.6
+    with caplog.at_level(logging.WARNING):
+        estimate = scale_from_depth(ratios)
+    assert estimate.value == pytest.approx(0.5, rel=0.01) and estimate.detail["images_off"] == ["frame7"]
+    assert "frame7 (+" in caplog.text
+    drifting = {f"frame{k}": 0.5 * (1 + 0.02 * k) for k in range(20)}
+    with pytest.raises(DatasetError, match=r"images disagree with the median scale .* drifts"):
+        scale_from_depth(drifting)
+    with pytest.raises(DatasetError, match="no image has"):
+        scale_from_depth({})
+    assert agreed_scale([ScaleEstimate(1.0, "user"), ScaleEstimate(1.04, "depth")]).source == "user"
+
+
+def test_trajectory_fit_gives_scale_and_frame(tmp_path):
+    generator = np.random.default_rng(1)
+    truth = _random_similarity(generator)
+    stamps = np.linspace(10.0, 20.0, 101)
+    positions = np.stack((np.cos(stamps), np.sin(1.3 * stamps), 0.2 * stamps), axis=1)
+    poses = torch.eye(4, dtype=torch.float64).repeat(len(stamps), 1, 1)
+    poses[:, :3, 3] = torch.from_numpy(truth.points(positions))
+    path = write_tum(tmp_path / "vio.txt", stamps, poses)
+    image_stamps = stamps[5:95:3] + 0.03  # between trajectory samples: interpolated
+    centres = np.stack((np.cos(image_stamps), np.sin(1.3 * image_stamps), 0.2 * image_stamps), axis=1)
+    fitted, detail = fit_to_trajectory(centres, image_stamps, read_trajectory(path))
+    assert fitted.scale == pytest.approx(truth.scale, rel=2e-3) and detail["images"] == len(image_stamps)
+    with pytest.raises(DatasetError, match="never overlap"):
+        fit_to_trajectory(centres, image_stamps + 100.0, read_trajectory(path))
+
+
+def test_rotation_to_z_up():
+    for up in (np.array([0.0, -1.0, 0.0]), np.array([0.3, 0.2, -0.9]), np.array([0.0, 0.0, -1.0])):
+        rotation = rotation_to_z_up(up)
+        np.testing.assert_allclose(rotation @ (up / np.linalg.norm(up)), [0.0, 0.0, 1.0], atol=1e-12)
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+
+
+def test_video_frames_are_sharp_and_spaced_by_motion(tmp_path):
+    generator = np.random.default_rng(2)
+    noise = generator.random((240, 1200)).astype(np.float32)  # blobs and finer detail, as a wall seen by a camera
+    texture = cv2.normalize(4.2 * cv2.GaussianBlur(noise, (0, 0), 8.0) + 0.6 * cv2.GaussianBlur(noise, (0, 0), 2.0), None, 0, 255, cv2.NORM_MINMAX)
+    texture = cv2.cvtColor(texture.astype(np.uint8), cv2.COLOR_GRAY2BGR)
+    path = tmp_path / "pan.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (320, 240))
+    blurred = set(range(3, 60, 4))
+    for k in range(60):
+        frame = texture[:, 10 * k : 10 * k + 320]
+        writer.write(cv2.blur(frame, (15, 15)) if k in blurred else frame)
+    writer.release()
+    picked = select_video_frames(path, tmp_path / "frames", VideoSelection(motion=0.1, window=3))
+    assert picked.numbers and not set(picked.numbers) & blurred
+    steps = np.diff(picked.numbers)
+    assert steps.min() >= 3 and steps.max() <= 6  # 0.1 of 160 px thumbnails = 32 px of 320: 3.2 frames at 10 px per frame
+    assert all(p.is_file() for p in picked.paths) and picked.stamps[1] == pytest.approx(picked.numbers[1] / 30.0)
+    assert sharpness(cv2.imread(str(picked.paths[0]), cv2.IMREAD_GRAYSCALE)) > 0
