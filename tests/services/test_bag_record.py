@@ -1,7 +1,8 @@
 """The recorder writes what the filter publishes on ROS 2 (amcl_pose, particle_cloud, /tf) and the
 odometry it reads into an MCAP rosbag2, read back by a second, independent decoder: the mcap reader
 with Foxglove's mcap_ros2 CDR decoder, using the schemas in the file (not rosbags). Every decoded
-message equals the one the filter's bridge published, and its values are the filter's."""
+message equals the one the filter's bridge published, and its values are the filter's; evo reads
+the pose trajectory from the bag."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ import math
 import numpy as np
 import pytest
 import torch
+from evo.tools.file_interface import read_bag_trajectory
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rosbags.rosbag2 import Reader
 from ruamel.yaml import YAML
 
 from locnerf.bags.writer import BagWriter
@@ -82,6 +85,10 @@ def test_the_filters_outputs_and_its_odometry_decode_from_the_bag_with_mcap_ros2
     assert torch.allclose(T_map_odom @ T_odom_base, pose_of(amcl.pose.pose.position, amcl.pose.pose.orientation), atol=1e-9)
     (_time, odometry) = decoded["/odom"][-1]
     assert torch.allclose(pose_of(odometry.pose.pose.position, odometry.pose.pose.orientation), T_odom_base, atol=1e-12)
+
+    with Reader(tmp_path / "bag") as reader:  # a third reader: evo's, as a robot team would plot the run
+        trajectory = read_bag_trajectory(reader, "/amcl_pose")
+    assert np.allclose(trajectory.positions_xyz[-1], T_map_base[:3, 3].numpy(), atol=1e-3) and trajectory.timestamps[-1] == 10.25
 
     metadata = YAML(typ="safe").load((tmp_path / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert metadata["storage_identifier"] == "mcap" and metadata["message_count"] == sum(len(found) for found in published.values())
