@@ -9,8 +9,10 @@ from pathlib import Path
 
 import torch
 
+from locnerf.bags.reader import bag_extent, is_bag
+from locnerf.bags.scenario import bag_scenario
 from locnerf.config import load_config, preset
-from locnerf.data.colour_camera import map_colour_camera
+from locnerf.data.colour_camera import check_map_poses, map_colour_camera
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import (
@@ -32,14 +34,21 @@ from locnerf.sim.scenario import ScenarioConfig, build_scenario, check_timeline
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
 from locnerf.sim.world import ProceduralWorld
+from locnerf_cli import eval_tracking_odometry
 from locnerf_cli.eval_tracking_live import run_live
-from locnerf_cli.flags import NO_DEPTH_HELP, from_flags, without_depth
+from locnerf_cli.flags import NO_DEPTH_HELP, add_poses_argument, from_flags, without_depth
+from locnerf_cli.tracking_flags import add_odometry_arguments
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("tracking", help="tracking along a path with odometry, optional kidnapping (paper Fig. 5)")
     parser.add_argument("--map", required=True, help="map file, or 'world' for the procedural world")
-    parser.add_argument("--sequence", required=True, help="'world' (figure-eight in the procedural world) or a data-set folder (NeRF-synthetic, 7-Scenes, ...)")
+    parser.add_argument(
+        "--sequence",
+        required=True,
+        help="'world' (figure-eight in the procedural world), a data-set folder (NeRF-synthetic, 7-Scenes, ...) or a ROS 2 bag "
+        "(its odometry, images and ground truth, docs/BAGS.md; the odometry and image flags do not apply)",
+    )
     parser.add_argument("--split", default="test", help="sequence folder: which split to replay (transforms_<split>.json, 7-Scenes TestSplit.txt, ...)")
     parser.add_argument("--background", default="white", help="NeRF-synthetic sequence: colour the RGBA frames are composited on (white, black)")
     parser.add_argument(
@@ -54,12 +63,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         " a whole multiple of --odom-rate",
     )
     parser.add_argument("--duration", type=float, default=None, help="length of the run, seconds (default: one loop)")
-    parser.add_argument("--odom-rate", type=float, default=15.0, help="odometry messages per second")
+    add_odometry_arguments(parser)
+    eval_tracking_odometry.add_arguments(parser)
     parser.add_argument("--image-rate", type=float, default=None, help="images per second (default: 3 offline, 5 with --live)")
-    parser.add_argument("--drift", type=float, default=0.01, help="odometry scale drift (0.01: 1 %% of the distance travelled)")
-    parser.add_argument("--yaw-drift", type=float, default=0.2, help="odometry yaw drift, degrees per second")
-    parser.add_argument("--noise", type=float, default=2e-3, help="odometry white translation noise per message, metres per axis")
-    parser.add_argument("--rotation-noise", type=float, default=0.057, help="odometry white rotation noise per message, degrees per axis")
     parser.add_argument(
         "--updates-per-image",
         type=int,
@@ -85,6 +91,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--plots", type=Path, default=None, help="folder for the PNG figure")
     parser.add_argument("--json", action="store_true", help="print the report and the error series as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_poses_argument(parser)
     parser.set_defaults(func=run)
 
 
@@ -106,7 +113,18 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
     if not folder.is_dir():
         raise FileNotFoundError(f"--sequence {folder}: no such folder (expected 'world' or a data-set folder)")
     colour_camera = map_colour_camera(radiance_map)
-    return read_sequence_path(folder, args.split, args.downscale, args.speed, args.odom_rate, args.background, args.frame_rate, colour_camera)
+    return read_sequence_path(
+        folder,
+        args.split,
+        args.downscale,
+        args.speed,
+        args.odom_rate,
+        args.background,
+        args.frame_rate,
+        colour_camera,
+        passes=args.passes,
+        poses=check_map_poses(radiance_map, args.poses),
+    )
 
 
 def convergence_criterion(args: argparse.Namespace) -> ConvergenceConfig:
@@ -146,32 +164,45 @@ def run(args: argparse.Namespace) -> int:
     scenario_config = from_flags(
         ScenarioConfig, {"duration": args.duration, "image_rate": image_rate, "vio": vio_config(args), "kidnap_at": args.kidnap_at, "seed": args.seed}
     )
+    bag = args.sequence != WORLD and is_bag(args.sequence)
+    if bag and args.kidnap_at is not None:
+        raise LocnerfInputError(f"--kidnap-at with the bag {args.sequence}: a bag's camera moved as recorded, it cannot be kidnapped")
     if args.live:
         if args.background != "white" or args.init != "global" or args.no_recovery or args.plots:
             raise LocnerfInputError("--live: --background white, --init global, no --no-recovery and no --plots (the services do not do the others)")
-        path = camera_path(args, open_map(args.map, torch.device("cpu")))
-        check_timeline(path, scenario_config)
-        sensor_seconds = args.duration if args.duration is not None else path.duration
+        if bag:
+            sensor_seconds = bag_extent(args.sequence)[0]
+        else:
+            path = camera_path(args, open_map(args.map, torch.device("cpu")))
+            check_timeline(path, scenario_config)
+            sensor_seconds = args.duration if args.duration is not None else path.duration
         report = run_live(args, criterion, image_rate, vio_config(args).model_dump(), sensor_seconds)
         print(json.dumps(report) if args.json else json.dumps(report, indent=2))
         return 0
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
-    path = camera_path(args, radiance_map)
-    scenario = build_scenario(path, scenario_config, radiance_map.normalization)
+    if bag:
+        scenario = bag_scenario(args.sequence, radiance_map.normalization)
+    else:
+        path = camera_path(args, radiance_map)
+        track = eval_tracking_odometry.offline_track(args, path, scenario_config, map_colour_camera(radiance_map))
+        scenario = build_scenario(path, scenario_config, radiance_map.normalization, track=track)
     config = localizer_config(args)
     region = search_region(radiance_map) if config.recovery.enabled else None
-    keyframes = recovery_keyframes(config, radiance_map, path.intrinsics, args.seed + 2)
+    keyframes = recovery_keyframes(config, radiance_map, scenario.path.intrinsics, args.seed + 2)
     localizer = Localizer(config, torch.Generator().manual_seed(args.seed), device, region=region, keyframes=keyframes)
     image_generator = torch.Generator().manual_seed(args.seed + 1)
     record = run_tracking(
         scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet, updates_per_image=args.updates_per_image
     )
-    summary = summarize_tracking(record, criterion)
+    summary = summarize_tracking(record, criterion) | eval_tracking_odometry.scenario_odometry(scenario, None if bag else track)
     if args.plots is not None:
         name = "world" if args.sequence == WORLD else Path(args.sequence).name
         figure = plot_tracking_errors(record, convergence_stamps(summary), criterion, args.plots / "tracking_error.png", f"tracking: {name}")
         summary["plot"] = str(figure)
+    valid = scenario.odometry_valid if scenario.odometry_valid is not None else torch.ones(len(scenario.stamps), dtype=torch.bool)
+    camera_odometry = scenario.odometry @ scenario.path.T_body_cam
+    summary = eval_tracking_odometry.write_outputs(args, summary, record, radiance_map.normalization, criterion, scenario.stamps[valid], camera_odometry[valid])
     if args.json:
         print(json.dumps({**summary, "series": error_series(record)}))
     else:

@@ -3,8 +3,8 @@
 Ingest, filter and K workers start as separate processes on loopback Zenoh (peer mode, multicast
 scouting off, explicit ``tcp/127.0.0.1`` endpoints on free ports), as ``locnerf up`` and
 ``locnerf loadtest`` start them. The ingest serves the offline run's scenario (source
-``scenario``: same path, odometry noise model and parameters, images, kidnapping and seed), paced
-at one sensor second per wall second; the filter starts globally (uniform over the map's camera
+``scenario``: same path, odometry noise model and parameters, images, kidnapping and seed), or the
+bag given as ``--sequence`` (source ``rosbag``), paced at one sensor second per wall second; the filter starts globally (uniform over the map's camera
 bounds, yaw unknown: its ``start = "global"``) with the localizer ``--config``/``--preset``; this
 process records odometry, ground truth, poses and update results and scores them with
 :mod:`locnerf.eval.tracking_live`.
@@ -20,14 +20,18 @@ from typing import Any
 
 import torch
 
-from locnerf.data.colour_camera import map_colour_camera
+from locnerf.bags.reader import bag_extent, is_bag
+from locnerf.data.colour_camera import check_map_poses, map_colour_camera
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import ConvergenceConfig
-from locnerf.eval.tracking_live import LiveObservations, live_summary
+from locnerf.eval.tracking_live import LiveObservations, live_record, live_summary
+from locnerf.eval.trajectory_output import odometry_drift
+from locnerf.field.protocol import MapNormalization
 from locnerf.maps.source import WORLD, open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
 from locnerf.messages.schemas import Odometry, PoseEstimate, PoseStamped, UpdateResult
+from locnerf_cli import eval_tracking_odometry
 from locnerf_cli.up import ServiceConfigs, start_services
 from locnerf_services.filter_loop.__main__ import FilterProcessConfig
 from locnerf_services.filter_loop.service import FilterLoopConfig
@@ -56,6 +60,9 @@ def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str
         "kidnap_at": args.kidnap_at,
         "vio": vio,
         "T_depth_colour": None if colour_camera is None else colour_camera.tolist(),
+        "passes": args.passes,
+        "poses": args.poses,
+        "odometry": eval_tracking_odometry.odometry_source(args).model_dump(),
     }
 
 
@@ -70,10 +77,12 @@ def service_configs(
     map_spec = args.map if args.map == WORLD else str(Path(args.map).resolve())
     localizer = str(Path(args.config).resolve()) if args.config is not None else args.preset
     common = {"robot_id": ROBOT_ID, "seed": args.seed}
-    ingest = IngestConfig(
-        source="scenario", prefetch_events=events, prefill=True, speed=1.0, scenario=scenario_settings(args, image_rate, vio, colour_camera), **common
-    )
-    loop = FilterLoopConfig(updates_per_image=args.updates_per_image)
+    if args.sequence != WORLD and is_bag(args.sequence):
+        source = {"source": "rosbag", "rosbag": {"path": str(Path(args.sequence).resolve())}}
+    else:
+        source = {"source": "scenario", "scenario": scenario_settings(args, image_rate, vio, colour_camera)}
+    ingest = IngestConfig(prefetch_events=events, prefill=True, speed=1.0, **source, **common)
+    loop = FilterLoopConfig(updates_per_image=args.updates_per_image, odometry_rate=args.odom_rate)
     filter_config = FilterProcessConfig(map=map_spec, device=args.device, localizer=localizer, loop=loop, **common)
     worker = WorkerConfig(map=map_spec, device=args.device, robot_id=ROBOT_ID)
     return ServiceConfigs(ingest, filter_config, worker, args.workers)
@@ -81,7 +90,9 @@ def service_configs(
 
 def _observe(observed: LiveObservations, kind: str, payload: bytes, arrival: float) -> None:
     if kind == "odometry":
-        observed.odometry.append((decode(payload, Odometry).stamp, arrival))
+        odometry = decode(payload, Odometry)
+        observed.odometry.append((odometry.stamp, arrival))
+        observed.odometry_poses[odometry.stamp] = torch.tensor(odometry.T_odom_body, dtype=torch.float64)
     elif kind == "truth":
         truth = decode(payload, PoseStamped)
         observed.truth[truth.stamp] = torch.tensor(truth.T_world_cam, dtype=torch.float64)
@@ -141,8 +152,33 @@ def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate:
     if args.workers < 1:
         raise LocnerfInputError(f"--workers {args.workers}: expected at least 1")
     radiance_map = open_map(args.map, torch.device("cpu"))
+    check_map_poses(radiance_map, args.poses)
     colour_camera = map_colour_camera(radiance_map)
-    events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
+    if args.sequence != WORLD and is_bag(args.sequence):
+        events = bag_extent(args.sequence)[1] + 16  # at most one event per message
+    else:
+        events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
     observed = record_run(service_configs(args, image_rate, vio, events, colour_camera), args.logs, sensor_seconds)
     report = live_summary(observed, radiance_map.normalization, args.kidnap_at, criterion, series=args.json)
-    return report | {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}
+    report |= {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}
+    return live_odometry_outputs(args, observed, report, radiance_map.normalization, criterion)
+
+
+def live_odometry_outputs(
+    args: argparse.Namespace, observed: LiveObservations, report: dict[str, Any], normalization: MapNormalization, criterion: ConvergenceConfig
+) -> dict[str, Any]:
+    """The report with the odometry's label (and its drift against the ground truth seen on the bus,
+    for real odometry), and with ``--out`` the TUM files and ``tracking.json`` written."""
+    stamps = sorted(observed.odometry_poses)
+    poses = torch.stack([observed.odometry_poses[s] for s in stamps]) if stamps else torch.zeros(0, 4, 4, dtype=torch.float64)
+    label = "synthetic" if args.sequence == WORLD else eval_tracking_odometry.odometry_source(args).label
+    report = report | {"odometry": label}
+    truth_stamps = [s for s in stamps if s in observed.truth]
+    if label != "synthetic" and len(truth_stamps) >= 2:
+        index = torch.tensor([stamps.index(s) for s in truth_stamps])
+        truth = torch.stack([observed.truth[s] for s in truth_stamps])
+        drift = odometry_drift(torch.tensor(truth_stamps, dtype=torch.float64), poses[index], torch.ones(len(index), dtype=torch.bool), truth)
+        drift.pop("series")
+        report["odometry_drift"] = drift
+    record = live_record(observed, normalization, args.kidnap_at)
+    return eval_tracking_odometry.write_outputs(args, report, record, normalization, criterion, torch.tensor(stamps, dtype=torch.float64), poses)

@@ -179,20 +179,63 @@ class SequencePath:
         return torch.arange(count, dtype=torch.float64) * stride * self.frame_period
 
     def image_at(self, time: float, pose: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-        return self.frames.images[self._frame_at(time)]
+        return self.frames.images[self.frame_at(time)]
 
     def depth_at(self, time: float) -> DepthObservation | None:
         if self.frames.depths is None or self.frames.depth_intrinsics is None:
             return None
-        return DepthObservation(self.frames.depths[self._frame_at(time)], self.frames.depth_intrinsics, self.frames.T_cam_depth)
+        return DepthObservation(self.frames.depths[self.frame_at(time)], self.frames.depth_intrinsics, self.frames.T_cam_depth)
 
-    def _frame_at(self, time: float) -> int:
+    def frame_at(self, time: float) -> int:
         """The frame taken at path time ``time`` (a frame stamp)."""
         phase = time / self.frame_period
         index = round(phase)
         if abs(phase - index) > 1e-6:
             raise ValueError(f"image time {time} s is between frames (period {self.frame_period} s): expected a frame stamp")
         return index % len(self.frames)
+
+
+def bounce_order(count: int, passes: int) -> list[int]:
+    """Frame positions of ``passes`` replays of ``count`` frames, forward and backward in turn, each
+    turn sharing its end frame with the pass before: ``[0 .. n-1, n-2 .. 0, 1 .. n-1, ...]``
+    (``count + (passes - 1)·(count - 1)`` frames).
+
+    Raises:
+        LocnerfInputError: ``passes`` < 1 or fewer than 2 frames with more than one pass.
+    """
+    if passes < 1 or (passes > 1 and count < 2):
+        raise LocnerfInputError(f"{passes} passes over {count} frames: expected at least 1 pass (and 2 frames to turn back)")
+    order = list(range(count))
+    for turn in range(1, passes):
+        order += list(range(count - 2, -1, -1)) if turn % 2 else list(range(1, count))
+    return order
+
+
+def read_sequence_frames(
+    folder: str | Path,
+    split: str,
+    downscale: int | None,
+    background: str = "white",
+    T_depth_colour: torch.Tensor | None = None,
+    passes: int = 1,
+    poses: str = "dslam",
+) -> PosedImages:
+    """A data-set folder's ``split`` (any format of :func:`locnerf.data.read_dataset`) in metres, the
+    poses moved onto the colour camera ``T_depth_colour`` (4, 4, map units) when given, replayed
+    ``passes`` times forward and backward (:func:`bounce_order`); ``poses``: 7-Scenes' ground truth
+    (``dslam`` | ``sfm``, :mod:`locnerf.data.sfm_poses`; with ``sfm`` the poses are the colour camera's
+    and ``T_depth_colour`` places the depth camera)."""
+    if dataset_format(folder) == "nerf_synthetic":
+        frames = read_nerf_synthetic(folder, split=split, background=background, downscale=downscale or 1)
+    else:
+        frames = read_dataset(folder, split=split, downscale=downscale, poses=poses, T_depth_colour=T_depth_colour if poses == "sfm" else None)
+    if T_depth_colour is not None and frames.T_cam_depth is None:
+        frames = with_colour_camera(frames, T_depth_colour)
+    if passes != 1:
+        frames = frames.subset(bounce_order(len(frames), passes))
+    depths = frames.depths / frames.normalization.scale if frames.depths is not None else None
+    T_world_cam = frames.normalization.map_to_metric(frames.T_world_cam.double())
+    return dataclasses.replace(frames, T_world_cam=T_world_cam, depths=depths, T_cam_depth=metric_offset(frames))
 
 
 def read_sequence_path(
@@ -204,6 +247,8 @@ def read_sequence_path(
     background: str = "white",
     frame_rate: float | None = None,
     T_depth_colour: torch.Tensor | None = None,
+    passes: int = 1,
+    poses: str = "dslam",
 ) -> SequencePath:
     """A data-set folder's ``split`` (any format of :func:`locnerf.data.read_dataset`) as a
     :class:`SequencePath`, poses (and depth images, where the data set has them) in the data set's metric frame.
@@ -211,15 +256,7 @@ def read_sequence_path(
     ``downscale`` None is the reader's default; ``background`` is the colour NeRF-synthetic RGBA
     frames are composited on (other formats have none); ``frame_rate`` replays the frames at the
     capture's own rate instead of ``speed``; ``T_depth_colour`` (4, 4, map units), the colour camera
-    the map was built for (:mod:`locnerf.data.colour_camera`), moves the poses onto it.
+    the map was built for (:mod:`locnerf.data.colour_camera`), moves the poses onto it; ``passes`` > 1
+    replays the frames forward and backward in turn (:func:`bounce_order`); ``poses`` as :func:`read_sequence_frames`.
     """
-    if dataset_format(folder) == "nerf_synthetic":
-        frames = read_nerf_synthetic(folder, split=split, background=background, downscale=downscale or 1)
-    else:
-        frames = read_dataset(folder, split=split, downscale=downscale)
-    if T_depth_colour is not None:
-        frames = with_colour_camera(frames, T_depth_colour)
-    depths = frames.depths / frames.normalization.scale if frames.depths is not None else None
-    T_world_cam = frames.normalization.map_to_metric(frames.T_world_cam.double())
-    metric = dataclasses.replace(frames, T_world_cam=T_world_cam, depths=depths, T_cam_depth=metric_offset(frames))
-    return SequencePath(metric, speed, odom_rate, frame_rate)
+    return SequencePath(read_sequence_frames(folder, split, downscale, background, T_depth_colour, passes, poses), speed, odom_rate, frame_rate)

@@ -16,12 +16,16 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
+import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.colour_camera import ColourCameraSetting, colour_camera_matrix
+from locnerf.data.sfm_poses import PoseSource
+from locnerf.errors import LocnerfInputError
+from locnerf.odometry.sequence import SYNTHETIC, OdometrySourceConfig, sequence_track
 from locnerf.sim.events import SensorEvent
-from locnerf.sim.paths import CameraPath, WorldPath, read_sequence_path
-from locnerf.sim.scenario import ScenarioConfig
+from locnerf.sim.paths import CameraPath, SequencePath, WorldPath, read_sequence_path
+from locnerf.sim.scenario import ScenarioConfig, run_stamps
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.stream import simulated_events
 from locnerf.sim.trajectory import FigureEightTrajectory
@@ -47,19 +51,47 @@ class ScenarioSourceConfig(BaseModel):
     vio: VioConfig = Field(default_factory=VioConfig, description="Odometry rate, drift and noise (the offline path's model).")
     kidnap_at: float | None = Field(None, gt=0, description="Seconds: the camera jumps about half a loop ahead, unseen by the odometry.")
     T_depth_colour: ColourCameraSetting
+    passes: int = Field(1, ge=1, description="Data-set folder: replay the frames this many times, forward and backward in turn.")
+    poses: PoseSource = Field("dslam", description="7-Scenes folder: the ground truth, dslam (its pose files) or sfm (pgt_sfm/); the map's.")
+    odometry: OdometrySourceConfig = Field(
+        default_factory=OdometrySourceConfig,
+        description="Data-set folder: the simulator's odometry, RGB-D odometry computed from the frames, or a trajectory file.",
+    )
 
 
 def camera_path(config: ScenarioSourceConfig) -> CameraPath:
     """The figure-eight of the default procedural world, or the data-set folder's frames in metres."""
     if config.sequence == WORLD:
         return WorldPath(ProceduralWorld.default(), FigureEightTrajectory(), CameraConfig())
-    colour_camera = None if config.T_depth_colour is None else colour_camera_matrix(config.T_depth_colour)
     return read_sequence_path(
-        config.sequence, config.split, config.downscale, config.speed, config.vio.rate, frame_rate=config.frame_rate, T_depth_colour=colour_camera
+        config.sequence,
+        config.split,
+        config.downscale,
+        config.speed,
+        config.vio.rate,
+        frame_rate=config.frame_rate,
+        T_depth_colour=_colour_camera(config),
+        passes=config.passes,
+        poses=config.poses,
     )
 
 
+def _colour_camera(config: ScenarioSourceConfig) -> torch.Tensor | None:
+    return None if config.T_depth_colour is None else colour_camera_matrix(config.T_depth_colour)
+
+
 def scenario_events(config: ScenarioSourceConfig, seed: int) -> Iterator[SensorEvent]:
-    """The offline scenario's events, truth in the metric world frame (what the wire carries)."""
+    """The offline scenario's events, truth in the metric world frame (what the wire carries); the
+    odometry is the simulator's, or real (``config.odometry``: computed here from the frames, or a file).
+
+    Raises:
+        LocnerfInputError: real odometry or several passes on the procedural world (it has no recorded frames).
+    """
     run = ScenarioConfig(duration=config.duration, image_rate=config.image_rate, vio=config.vio, kidnap_at=config.kidnap_at, seed=seed)
-    return simulated_events(camera_path(config), run)
+    path = camera_path(config)
+    if not isinstance(path, SequencePath):
+        if config.odometry.source != SYNTHETIC or config.passes != 1:
+            raise LocnerfInputError("sequence 'world': expected the synthetic odometry and one pass (real odometry needs recorded frames)")
+        return simulated_events(path, run)
+    track = sequence_track(config.odometry, path, run_stamps(path, run), config.sequence, config.split, _colour_camera(config), config.passes)
+    return simulated_events(path, run, track=track)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import cv2
@@ -104,3 +105,69 @@ def test_a_malformed_list_is_refused_naming_file_and_line(tmp_path: Path) -> Non
     (tmp_path / "rgb.txt").write_text("1.0\n")
     with pytest.raises(DatasetError, match=r"rgb\.txt, line 1: '1\.0', expected 'stamp filename'"):
         read_tum_rgbd(tmp_path)
+
+
+def _tracking_argv(folder: Path, out: Path, *extra: str) -> list[str]:
+    return [
+        "eval", "tracking", "--map", "world", "--sequence", str(folder), "--split", "all", "--downscale", "1", "--frame-rate", "30",
+        "--image-rate", "15", "--duration", "0.2", "--init", "gaussian", "--preset", "llff", "--converged-hold", "0", "--converged-translation", "1", "--converged-rotation", "45", "--seed", "1", "--quiet", "--out", str(out), *extra,
+    ]  # fmt: skip
+
+
+def test_recorded_odometry_feeds_the_tracking_run_and_evo_reproduces_its_figure(tum_folder, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``locnerf odometry`` on the folder, then ``eval tracking --odometry FILE --out``: the report names the
+    file, and evo's APE (no alignment: estimate and reference share the map's frame) on the written
+    TUM files is the report's error at every scored stamp, its median the headline's."""
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    folder, _ = tum_folder
+    odometry = tmp_path / "odometry_in.txt"
+    assert main(["odometry", str(folder), "--split", "all", "--downscale", "1", "--out", str(odometry)]) == 0
+    capsys.readouterr()
+    assert main([*_tracking_argv(folder, tmp_path / "run", "--odometry", str(odometry)), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["odometry"] == "file:odometry_in.txt" and report["odometry_report"]["gaps"] == 0
+    assert report["odometry_drift"]["ape_translation_max"] < 0.005  # the file is the RGB-D odometry of exact renders
+    assert json.loads((tmp_path / "run" / "tracking.json").read_text())["trajectories"]["estimate"].endswith("estimate.txt")
+    reference = file_interface.read_tum_trajectory_file(str(tmp_path / "run" / "reference.txt"))
+    estimate = file_interface.read_tum_trajectory_file(str(tmp_path / "run" / "estimate.txt"))
+    reference, estimate = sync.associate_trajectories(reference, estimate, max_diff=1e-6)
+    ours = report["series"]
+    first = ours["stamps"].index(float(estimate.timestamps[0]))
+    for relation, series, headline in (
+        (metrics.PoseRelation.translation_part, "translation_error", "translation_median"),
+        (metrics.PoseRelation.rotation_angle_deg, "rotation_error_deg", "rotation_median_deg"),
+    ):
+        ape = metrics.APE(relation)
+        ape.process_data((reference, estimate))
+        assert np.allclose(ape.error, ours[series][first:], atol=1e-6)
+        lower_median = float(np.sort(ape.error)[(len(ape.error) - 1) // 2])  # the headline's median: the lower middle value
+        assert lower_median == pytest.approx(report["start"]["after_convergence"][headline], abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("0.0 0 0 0 0 0 0 1\n0.2 0 0 0 0 0 0 1\n0.1 0 0 0 0 0 0 1\n", r"bad\.txt, line 3: stamp 0\.1 s is before line 2's 0\.2 s"),
+        ("0.0 0 0 0 0 0 0 1\n0.0 0 0 0 0 0 0 1\n", r"bad\.txt, line 2: stamp 0\.0 s is a duplicate of line 1's"),
+        ("0.0 0 0 0 0 0 0.5 1\n", r"bad\.txt, line 1: quaternion .* has norm 1\.118034; expected a unit quaternion"),
+        (
+            "100.0 0 0 0 0 0 0 1\n100.1 0 0 0 0 0 0 1\n",
+            r"bad\.txt: stamps 100\.000000–100\.100000 s \(lines 1–2\) never overlap the images' stamps 0\.000000–0\.2",
+        ),
+    ],
+)
+def test_bad_odometry_files_are_refused_by_the_command(tum_folder, tmp_path: Path, content: str, message: str, caplog: pytest.LogCaptureFixture) -> None:
+    folder, _ = tum_folder
+    (tmp_path / "bad.txt").write_text(content)
+    assert main(_tracking_argv(folder, tmp_path / "run", "--odometry", str(tmp_path / "bad.txt"))) == 2
+    assert re.search(message, caplog.text), message
+
+
+def test_a_non_rigid_extrinsic_is_refused(tum_folder, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    folder, _ = tum_folder
+    odometry = write_tum(tmp_path / "odometry.txt", np.arange(5) / 15, torch.eye(4, dtype=torch.float64).repeat(5, 1, 1))
+    np.savetxt(tmp_path / "extrinsic.txt", np.diag([1.0, 1.0, 1.1, 1.0]))
+    assert main(_tracking_argv(folder, tmp_path / "run", "--odometry", str(odometry), "--T-body-cam", str(tmp_path / "extrinsic.txt"))) == 2
+    assert re.search(r"--T-body-cam .*extrinsic\.txt: expected a rigid transform", caplog.text), caplog.text
