@@ -82,6 +82,17 @@ def test_ground_truth_from_tf_of_a_motion_capture_frame_moved_onto_the_camera(tm
     assert nanoseconds_from_seconds(truth.stamp) == 7 and torch.allclose(truth.T_world_cam, T_world_body @ T_body_cam, atol=1e-12)
 
 
+def test_ground_truth_as_odometry_messages(tmp_path):
+    T_world_body = random_pose(torch.Generator().manual_seed(5))
+    with BagWriter(tmp_path / "bag") as bag:
+        bag.write("/odom", ODOMETRY, 0, build.odometry_message(0, torch.eye(4, dtype=torch.float64)))
+        bag.write("/mocap/odom", ODOMETRY, 3, build.odometry_message(3, T_world_body, "world", "body"))
+        bag.write("/camera/camera_info", CAMERA_INFO, 8, build.camera_info_message(8, COLOUR, "camera"))
+        bag.write("/camera/image_raw", IMAGE, 8, build.image_message(8, np.zeros((12, 16, 3), np.uint8), "rgb8", "camera"))
+    (truth,) = [event for event in bag_events(tmp_path / "bag", BagTopics(ground_truth="mocap/odom")) if isinstance(event, GroundTruthEvent)]
+    assert nanoseconds_from_seconds(truth.stamp) == 3 and torch.allclose(truth.T_world_cam, T_world_body, atol=1e-12)
+
+
 def test_the_depth_offset_travels_on_tf_static_in_optical_axes(tmp_path):
     events = sensor_stream(seed=5, ticks=1)
     write_events(tmp_path / "bag", events)
