@@ -177,8 +177,8 @@ def live_odometry_outputs(
     if label != "synthetic" and len(truth_stamps) >= 2:
         index = torch.tensor([stamps.index(s) for s in truth_stamps])
         truth = torch.stack([observed.truth[s] for s in truth_stamps])
-        drift = odometry_drift(torch.tensor(truth_stamps, dtype=torch.float64), poses[index], torch.ones(len(index), dtype=torch.bool), truth)
-        drift.pop("series")
-        report["odometry_drift"] = drift
+        report["odometry_drift"] = odometry_drift(
+            torch.tensor(truth_stamps, dtype=torch.float64), poses[index], torch.ones(len(index), dtype=torch.bool), truth
+        )
     record = live_record(observed, normalization, args.kidnap_at)
     return eval_tracking_odometry.write_outputs(args, report, record, normalization, criterion, torch.tensor(stamps, dtype=torch.float64), poses)

@@ -22,6 +22,7 @@ import torch
 
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord
+from locnerf.eval.tracking_plots import plot_error_and_drift
 from locnerf.eval.trajectory_output import odometry_drift, write_run_trajectories
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting
@@ -96,7 +97,6 @@ def scenario_odometry(scenario: TrackingScenario, track: OdometryTrack | None) -
         return {"odometry": scenario.odometry_label}
     camera = scenario.odometry @ scenario.path.T_body_cam
     drift = odometry_drift(scenario.stamps, camera, track.valid, scenario.path.poses_at(scenario.path_times))
-    drift.pop("series")
     return {"odometry": track.label, "odometry_report": track.report, "odometry_drift": drift}
 
 
@@ -109,10 +109,18 @@ def write_outputs(
     odometry_stamps: torch.Tensor,
     odometry_poses: torch.Tensor,
 ) -> dict[str, Any]:
-    """With --out: the TUM files and ``tracking.json`` (the report with their paths under ``trajectories``); the report."""
+    """With --out: the TUM files, ``drift.png`` (the estimate's error beside the odometry's drift, for real
+    odometry) and ``tracking.json`` (the report with their paths under ``trajectories``); the report,
+    without the drift's series."""
+    drift_series = report.get("odometry_drift", {}).get("series")
+    if drift_series is not None:
+        report = report | {"odometry_drift": {k: v for k, v in report["odometry_drift"].items() if k != "series"}}
     if args.out is None:
         return report
     files = write_run_trajectories(args.out, record, normalization, criterion, odometry_stamps, odometry_poses)
+    if drift_series is not None:
+        title = f"{Path(args.sequence).name}: estimate and {report['odometry']} odometry"
+        files["drift_plot"] = str(plot_error_and_drift(record, drift_series, args.out / "drift.png", title))
     report = report | {"trajectories": files}
     (args.out / REPORT).write_text(json.dumps(report))
     return report

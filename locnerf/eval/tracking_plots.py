@@ -36,3 +36,28 @@ def plot_tracking_errors(record: TrackingRecord, converged_at: list[float], crit
     ax_t.legend(loc="upper right", fontsize=8)
     ax_r.set_xlabel("time (s)")
     return save_figure(figure, path, title)
+
+
+def plot_error_and_drift(record: TrackingRecord, drift: dict[str, list[float]], path: Path, title: str) -> Path:
+    """The filter's error beside its odometry's own drift, both against time: translation (top) and rotation (bottom).
+
+    Args:
+        record: the run (errors in map units, degrees).
+        drift: ``stamps``, ``ape_translation`` (m) and ``ape_rotation_deg`` of the odometry aligned at its
+            first pose (the ``series`` of :func:`locnerf.eval.trajectory_output.odometry_drift`).
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure, (ax_t, ax_r) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    stamps = record.stamps.tolist()
+    for axis, errors, odometry, label in (
+        (ax_t, record.translation_error.tolist(), drift["ape_translation"], "translation error (m)"),
+        (ax_r, record.rotation_error_deg.tolist(), drift["ape_rotation_deg"], "rotation error (deg)"),
+    ):
+        axis.plot(drift["stamps"], odometry, color="tab:orange", linewidth=1.2, label="odometry alone (aligned at its first pose)")
+        axis.plot(stamps, errors, color="tab:blue", linewidth=1.2, label="locnerf estimate")
+        axis.set_yscale("log")
+        axis.set_ylabel(label)
+        axis.grid(True, alpha=0.3)
+    ax_t.legend(loc="upper left", fontsize=8)
+    ax_r.set_xlabel("time (s)")
+    return save_figure(figure, path, title)

@@ -129,7 +129,8 @@ def test_recorded_odometry_feeds_the_tracking_run_and_evo_reproduces_its_figure(
     report = json.loads(capsys.readouterr().out)
     assert report["odometry"] == "file:odometry_in.txt" and report["odometry_report"]["gaps"] == 0
     assert report["odometry_drift"]["ape_translation_max"] < 0.005  # the file is the RGB-D odometry of exact renders
-    assert json.loads((tmp_path / "run" / "tracking.json").read_text())["trajectories"]["estimate"].endswith("estimate.txt")
+    written = json.loads((tmp_path / "run" / "tracking.json").read_text())["trajectories"]
+    assert written["estimate"].endswith("estimate.txt") and Path(written["drift_plot"]).stat().st_size > 0
     reference = file_interface.read_tum_trajectory_file(str(tmp_path / "run" / "reference.txt"))
     estimate = file_interface.read_tum_trajectory_file(str(tmp_path / "run" / "estimate.txt"))
     reference, estimate = sync.associate_trajectories(reference, estimate, max_diff=1e-6)
