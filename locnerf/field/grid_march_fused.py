@@ -25,14 +25,15 @@ keys the ray by the Morton code of the brick around it; the rays are then marche
 counting sort), so that rays that meet the same part of the scene read the same rows one after the
 other. Each ray's result does not depend on the order.
 
-Rays are split over ``torch.get_num_threads()`` threads (numba's ``prange``); with one thread
-(the services' setting) the serial variant runs, which needs no threading layer and may be called
-from any Python thread. Compiled code is cached on disk (numba's ``cache=True``) after the first call.
+Rays are split over ``torch.get_num_threads()`` threads (numba's ``prange``; one parallel render at
+a time per process); with one thread (the services' setting) the serial variant runs, which needs no
+threading layer and may run in several Python threads at once. Compiled code is cached on disk (numba's ``cache=True``) after the first call.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 
 import numba
 import numpy as np
@@ -43,6 +44,8 @@ from locnerf.field.grid_march import JUMP_MARGIN, SkipTable
 
 _SOFTPLUS_THRESHOLD = 20.0  # torch.nn.functional.softplus returns x above this
 _CHUNKS_PER_THREAD = 8  # rays are split in chunks, each with its own scratch row
+_PARALLEL_LAUNCH = threading.Lock()
+"""Parallel renders of one process take turns: numba's workqueue threading layer (where OpenMP and TBB are missing) aborts on concurrent launches."""
 _KEY_BITS = 6  # bits per axis of the brick coordinates that order the rays (2**18 buckets)
 
 
@@ -260,18 +263,19 @@ def fused_march(
     cells = np.array([r - 1 for r in resolution], dtype=np.int64)
     shading = (grid.detach().numpy(), cells, float(shift), float(scale), float(termination_transmittance), bool(with_position), out, log_transmittance)
     threads = min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)
-    chunks = min(rays, threads * _CHUNKS_PER_THREAD)
     if threads > 1 and rays > 1:
-        numba.set_num_threads(threads)
-    with record_function("march: first occupied sample, ray order"):
-        if threads > 1 and rays > 1:
-            _first_hits_parallel(*lattice, cells, _brick_bits(resolution), first, keys, chunks)
-        else:
+        chunks = min(rays, threads * _CHUNKS_PER_THREAD)
+        with _PARALLEL_LAUNCH:
+            numba.set_num_threads(threads)
+            with record_function("march: first occupied sample, ray order"):
+                _first_hits_parallel(*lattice, cells, _brick_bits(resolution), first, keys, chunks)
+                order = _counting_order(keys)
+            with record_function("march: skip, gather, shade, composite"):
+                _march_parallel(order, first, *lattice, *shading, chunks)
+    else:
+        with record_function("march: first occupied sample, ray order"):
             _first_hits_serial(*lattice, cells, _brick_bits(resolution), first, keys)
-        order = _counting_order(keys)
-    with record_function("march: skip, gather, shade, composite"):
-        if threads > 1 and rays > 1:
-            _march_parallel(order, first, *lattice, *shading, chunks)
-        else:
+            order = _counting_order(keys)
+        with record_function("march: skip, gather, shade, composite"):
             _march_serial(order, first, *lattice, *shading)
     return torch.from_numpy(out), torch.from_numpy(log_transmittance)
