@@ -28,6 +28,7 @@ from locnerf.render.image import render_image
 from locnerf.train import BuildConfig, RoomConfig, build_map, evaluate_held_out, psnr
 from locnerf.train.surface_layer import surface_distance_of_frames
 from locnerf_cli.flags import add_poses_argument, from_flags
+from locnerf_cli.map_sfm import add_align_command, add_sfm_arguments, posed_capture_of_args
 
 logger = logging.getLogger(__name__)
 
@@ -37,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     commands = parser.add_subparsers(dest="map_command", required=True)
 
     build = commands.add_parser("build", help="build a map file from a data set (LLFF, NeRF-synthetic, nerfstudio, 7-Scenes)")
-    build.add_argument("data", help="data-set folder")
+    build.add_argument("data", help="data-set folder; with --sfm a capture: image folder, video, RGB-D data set, COLMAP model or transforms.json")
     build.add_argument("--out", required=True, help="map file to write")
     build.add_argument("--backend", choices=("grid", "nerf_pytorch"), default="grid", help="grid: train a grid map; nerf_pytorch: import --checkpoint")
     build.add_argument("--checkpoint", help="nerf-pytorch .tar checkpoint (backend nerf_pytorch)")
@@ -61,6 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument("--device", default="auto", help="auto | cpu | cuda[:N]")
     build.add_argument("--seed", type=int, default=0)
     add_poses_argument(build)
+    add_sfm_arguments(build)
     build.set_defaults(func=run_build)
 
     evaluate = commands.add_parser("eval", help="PSNR/SSIM of a map against a data set's views")
@@ -130,6 +132,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.add_argument("map", help="map file")
     info.set_defaults(func=run_info)
 
+    add_align_command(commands)
+
 
 def _split_on_map_camera(radiance_map, data: str, downscale: int | None, split: str = "test", stride: int = 1, poses: str = "dslam"):
     """The frames of ``split`` (held-out views, or the training frames) posed by ``poses`` on the camera the map was built for (:func:`read_on_map_camera`)."""
@@ -139,7 +143,9 @@ def _split_on_map_camera(radiance_map, data: str, downscale: int | None, split: 
 def _training_frames(args: argparse.Namespace):
     """The frames ``map build`` trains on, and the map metadata of their pose source: with ``--poses sfm``
     the SfM colour-camera poses, the depth camera placed by the colour camera calibrated on the dSLAM poses
-    (the Kinect's own offset; :func:`sfm_training_frames`)."""
+    (the Kinect's own offset; :func:`sfm_training_frames`); with ``--sfm``, the capture posed by structure from motion."""
+    if args.sfm:
+        return posed_capture_of_args(args)
     if check_pose_source(args.poses) == "dslam":
         return read_dataset(args.data, split=args.split, downscale=args.downscale, stride=args.stride), {}
     return sfm_training_frames(args.data, args.split, args.downscale, args.stride, calibrate=not args.no_colour_calibration)
@@ -167,9 +173,11 @@ def run_build(args: argparse.Namespace) -> int:
         config = from_flags(BuildConfig, values, {"use_depth": "--no-depth", "calibrate_colour_camera": "--no-colour-calibration"})
         radiance_map = build_map(train, config, device=device, progress=True)
     radiance_map.metadata.update(pose_metadata)
-    test_views = _split_on_map_camera(radiance_map, args.data, args.downscale, poses=args.poses)
-    scores = evaluate_held_out(radiance_map.render_rays, test_views, radiance_map.reference_poses(), device)
-    radiance_map.metadata.update(train_split=args.split, train_stride=args.stride, train_views=len(train), **_score_metadata(scores, args.split))
+    radiance_map.metadata.update(train_split=args.split, train_stride=args.stride, train_views=len(train))
+    if not args.sfm:  # an SfM map's frame is not the data set's: the data set's poses cannot score it
+        test_views = _split_on_map_camera(radiance_map, args.data, args.downscale, poses=args.poses)
+        scores = evaluate_held_out(radiance_map.render_rays, test_views, radiance_map.reference_poses(), device)
+        radiance_map.metadata.update(**_score_metadata(scores, args.split))
     save_map(radiance_map, args.out)
     print(json.dumps({"out": str(args.out), **radiance_map.metadata}, default=str))
     return 0

@@ -6,6 +6,7 @@ takes about 15 s on 2 cores. Poses are scored against the rendering poses after 
 
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 
@@ -23,6 +24,7 @@ from locnerf.sfm.alignment import alignment_errors
 from locnerf.sfm.capture import read_capture
 from locnerf.sfm.pipeline import MetricOptions, posed_capture
 from locnerf.train import BuildConfig, build_map
+from locnerf_cli.main import main
 from tests.sfm.world_capture import FRAMES, write_world_capture
 
 pytest.importorskip("pycolmap")
@@ -123,3 +125,13 @@ def test_bad_captures_are_refused_by_name(tmp_path):
     empty.mkdir()
     with pytest.raises(FileNotFoundError, match="no images"):
         read_capture(empty, tmp_path / "work")
+
+
+def test_map_build_sfm_command_reuses_the_cached_reconstruction(capture, tmp_path, capsys):
+    folder, cache, _ = capture
+    out = tmp_path / "cli.locmap"
+    posed_capture(folder, cache)  # the reconstruction the command finds in its cache
+    assert main(["map", "build", str(folder), "--sfm", "--sfm-cache", str(cache), "--steps", "2", "--voxels", str(24**3), "--out", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert printed["sfm"]["cached"] and printed[METRIC_FRAME_KEY]["metric"] and len(printed["sfm"]["frames"]) == FRAMES
+    assert load_map(out, "cpu").metadata[METRIC_FRAME_KEY]["scale"]["source"] == "depth"

@@ -11,8 +11,10 @@ import torch
 
 from locnerf.data.trajectory_files import read_trajectory, write_tum
 from locnerf.errors import DatasetError
+from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import make_pose, so3_exp
 from locnerf.geometry.similarity import Similarity, fit_similarity, fit_similarity_to_poses
+from locnerf.sfm.alignment import aligned_normalization, alignment_errors
 from locnerf.sfm.metric import ScaleEstimate, agreed_scale, fit_to_trajectory, rotation_to_z_up, scale_from_depth
 from locnerf.sfm.video import VideoSelection, select_video_frames, sharpness
 
@@ -92,3 +94,15 @@ def test_video_frames_are_sharp_and_spaced_by_motion(tmp_path):
     assert steps.min() >= 3 and steps.max() <= 6  # 0.1 of 160 px thumbnails = 32 px of 320: 3.2 frames at 10 px per frame
     assert all(p.is_file() for p in picked.paths) and picked.stamps[1] == pytest.approx(picked.numbers[1] / 30.0)
     assert sharpness(cv2.imread(str(picked.paths[0]), cv2.IMREAD_GRAYSCALE)) > 0
+
+
+def test_aligned_normalization_takes_true_poses_into_the_map_frame():
+    generator = np.random.default_rng(3)
+    map_to_truth = _random_similarity(generator)
+    map_poses = np.stack([make_pose(so3_exp(torch.from_numpy(generator.normal(size=3))), torch.from_numpy(generator.normal(size=3))).numpy() for _ in range(6)])
+    truth = map_to_truth.poses(map_poses)
+    fitted, report = alignment_errors(map_poses, truth)
+    assert report["summary"]["translation_max_m"] < 1e-9 and report["summary"]["rotation_max_deg"] < 1e-5
+    normalization = aligned_normalization(MapNormalization(), fitted)
+    np.testing.assert_allclose(normalization.metric_to_map(torch.from_numpy(truth)).numpy(), map_poses, atol=1e-9)
+    np.testing.assert_allclose(normalization.map_to_metric(torch.from_numpy(map_poses)).numpy(), truth, atol=1e-9)
