@@ -18,7 +18,7 @@ from locnerf.errors import LocnerfInputError
 from locnerf.geometry.validation import validate_pose_setting
 from locnerf.odometry.rgbd import RgbdOdometryConfig
 from locnerf.odometry.tracks import DEFAULT_MAX_GAP_S, OdometryTrack, file_track, rgbd_track
-from locnerf.sim.paths import SequencePath, read_sequence_frames
+from locnerf.sim.paths import SequencePath, bounce_order, read_sequence_frames
 
 SYNTHETIC = "synthetic"
 RGBD = "rgbd"
@@ -77,9 +77,10 @@ def sequence_track(
     if config.source != RGBD:
         extrinsic = None if config.T_body_cam is None else torch.tensor(config.T_body_cam, dtype=torch.float64)
         return file_track(config.source, stamps, config.file_format, extrinsic, config.max_gap)
+    frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour)
+    order = bounce_order(len(frames), passes)  # the replay's frames as positions in the split, never copied
     try:
-        indices = [path.frame_at(float(stamp)) for stamp in stamps]
+        indices = [order[path.frame_at(float(stamp))] for stamp in stamps]
     except ValueError as error:
         raise LocnerfInputError(f"RGB-D odometry needs the replay at the capture's frame rate (--frame-rate): {error}") from error
-    frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour, passes=passes)
     return rgbd_track(frames, indices, stamps, config.rgbd)
