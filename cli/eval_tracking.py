@@ -195,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
     record = run_tracking(
         scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet, updates_per_image=args.updates_per_image
     )
-    summary = summarize_tracking(record, criterion) | eval_tracking_odometry.scenario_odometry(scenario, None if bag else track)
+    summary = summarize_tracking(record, criterion) | eval_tracking_odometry.scenario_odometry(args, scenario, None if bag else track)
     if args.plots is not None:
         name = "world" if args.sequence == WORLD else Path(args.sequence).name
         figure = plot_tracking_errors(record, convergence_stamps(summary), criterion, args.plots / "tracking_error.png", f"tracking: {name}")

@@ -171,7 +171,7 @@ def live_odometry_outputs(
     for real odometry), and with ``--out`` the TUM files and ``tracking.json`` written."""
     stamps = sorted(observed.odometry_poses)
     poses = torch.stack([observed.odometry_poses[s] for s in stamps]) if stamps else torch.zeros(0, 4, 4, dtype=torch.float64)
-    label = "synthetic" if args.sequence == WORLD else eval_tracking_odometry.odometry_source(args).label
+    label = eval_tracking_odometry.odometry_label(args)
     report = report | {"odometry": label}
     truth_stamps = [s for s in stamps if s in observed.truth]
     if label != "synthetic" and len(truth_stamps) >= 2:

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from locnerf.bags.reader import is_bag
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord
 from locnerf.eval.tracking_plots import plot_error_and_drift
@@ -91,10 +92,17 @@ def offline_track(args: argparse.Namespace, path: CameraPath, scenario_config: S
     return sequence_track(config, path, run_stamps(path, scenario_config), args.sequence, args.split, colour_camera, args.passes)
 
 
-def scenario_odometry(scenario: TrackingScenario, track: OdometryTrack | None) -> dict[str, Any]:
-    """The report's ``odometry`` label, and with real odometry its counts and drift (without the series)."""
+def odometry_label(args: argparse.Namespace) -> str:
+    """What the run's odometry is: ``synthetic``, ``rgbd-live`` or ``file:<name>`` (a trajectory file, or the bag replayed)."""
+    if args.sequence != "world" and is_bag(args.sequence):
+        return f"file:{Path(args.sequence).name}"
+    return SYNTHETIC if args.sequence == "world" else odometry_source(args).label
+
+
+def scenario_odometry(args: argparse.Namespace, scenario: TrackingScenario, track: OdometryTrack | None) -> dict[str, Any]:
+    """The report's ``odometry`` label, and with real odometry its counts and drift."""
     if track is None:
-        return {"odometry": scenario.odometry_label}
+        return {"odometry": odometry_label(args)}
     camera = scenario.odometry @ scenario.path.T_body_cam
     drift = odometry_drift(scenario.stamps, camera, track.valid, scenario.path.poses_at(scenario.path_times))
     return {"odometry": track.label, "odometry_report": track.report, "odometry_drift": drift}
