@@ -4,7 +4,8 @@
 BAG`` writes a data set the product reads (7-Scenes, LLFF, NeRF-synthetic, nerfstudio, EuRoC) as an
 MCAP rosbag2 with the standard message types (docs/BAGS.md): the very stream the folder's replay
 sends (``locnerf eval tracking --live`` for a sequence folder, ``source = "euroc"`` for EuRoC), its
-odometry simulated from the ground truth with the same model and seed.
+odometry simulated from the ground truth with the same model and seed, or for a sequence folder the
+replay's real odometry (``--odometry rgbd`` or a TUM / EuRoC trajectory FILE, as ``eval tracking``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from locnerf.data.colour_camera import map_colour_camera
 from locnerf.data.euroc import read_euroc
 from locnerf.errors import LocnerfInputError
 from locnerf.maps.source import open_map
+from locnerf.odometry.sequence import SYNTHETIC
+from locnerf_cli import eval_tracking_odometry
 from locnerf_cli.eval_tracking import vio_config
 from locnerf_cli.tracking_flags import add_odometry_arguments
 from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
@@ -50,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     export.add_argument("--image-rate", type=float, default=5.0, help="sequence folder: images per second")
     export.add_argument("--camera", default="cam0", help="EuRoC: camera folder under mav0/")
     add_odometry_arguments(export)
+    eval_tracking_odometry.add_source_arguments(export)
     export.add_argument(
         "--map", default=None, help="map whose colour camera the poses are moved onto (7-Scenes: the map built with a calibrated colour camera)"
     )
@@ -89,9 +93,12 @@ def export_events(args: argparse.Namespace):
     vio = vio_config(args)
     generator = torch.Generator().manual_seed(args.seed)
     if (args.data / "mav0").is_dir():
+        if args.odometry != SYNTHETIC or args.passes != 1:
+            raise LocnerfInputError(f"{args.data}: a EuRoC folder is exported with its simulated odometry; --odometry and --passes are for sequence folders")
         config = EurocSourceConfig(path=str(args.data), camera=args.camera, downscale=float(args.downscale or 1), vio=vio)
         return euroc_events(read_euroc(args.data, args.camera, None), config, generator)
     colour_camera = None if args.map is None else map_colour_camera(open_map(args.map, torch.device("cpu")))
+    odometry = eval_tracking_odometry.odometry_source(argparse.Namespace(**vars(args), sequence=str(args.data)))
     config = ScenarioSourceConfig(
         sequence=str(args.data.resolve()),
         split=args.split,
@@ -102,6 +109,8 @@ def export_events(args: argparse.Namespace):
         image_rate=args.image_rate,
         vio=vio,
         T_depth_colour=None if colour_camera is None else colour_camera.tolist(),
+        passes=args.passes,
+        odometry=odometry,
     )  # the other fields keep the replay's defaults
     return scenario_events(config, args.seed)
 

@@ -36,7 +36,13 @@ REPORT = "tracking.json"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """--odometry, --odometry-format, --T-body-cam, --passes, --out."""
+    """--odometry, --odometry-format, --T-body-cam, --passes (:func:`add_source_arguments`), --out."""
+    add_source_arguments(parser)
+    parser.add_argument("--out", type=Path, default=None, help="folder for tracking.json and the TUM files reference.txt, estimate.txt, odometry.txt")
+
+
+def add_source_arguments(parser: argparse.ArgumentParser) -> None:
+    """--odometry, --odometry-format, --T-body-cam, --passes: what :func:`odometry_source` reads (also ``locnerf bag export``'s)."""
     parser.add_argument(
         "--odometry",
         default=SYNTHETIC,
@@ -52,7 +58,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="--odometry FILE: text file, the 4x4 camera pose (OpenGL axes) in the file's body frame, m",
     )
     parser.add_argument("--passes", type=int, default=1, help="sequence folder: replay the frames this many times, forward and backward in turn")
-    parser.add_argument("--out", type=Path, default=None, help="folder for tracking.json and the TUM files reference.txt, estimate.txt, odometry.txt")
 
 
 def odometry_source(args: argparse.Namespace) -> OdometrySourceConfig:

@@ -9,17 +9,23 @@ import logging
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
 
 from locnerf.bags.events import bag_events
 from locnerf.data.euroc import read_euroc
+from locnerf.data.trajectory_files import write_tum
+from locnerf.geometry.se3 import make_pose
+from locnerf.geometry.so3 import so3_exp
 from locnerf.messages.stamps import nanoseconds_from_seconds
+from locnerf.odometry.sequence import OdometrySourceConfig
 from locnerf.sim.events import ImageEvent, OdometryEvent
 from locnerf.sim.sensors import VioConfig
 from locnerf_cli.main import main
 from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
+from locnerf_services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
 from tests.bags.test_bag_events import assert_same_events
 
 
@@ -64,3 +70,45 @@ def test_export_refuses_an_existing_bag_before_reading_the_data(tmp_path, caplog
     with caplog.at_level(logging.ERROR):
         assert main(["bag", "export", str(tmp_path / "no data here"), "--out", str(tmp_path / "bag")]) == 2
     assert f"--out {tmp_path / 'bag'}: exists already" in caplog.text
+
+
+def nerf_synthetic_folder(folder: Path, frames: int = 6) -> Path:
+    """A NeRF-synthetic test split of ``frames`` 8×6 random images on a line of poses."""
+    generator = np.random.default_rng(11)
+    (folder / "test").mkdir(parents=True)
+    entries = []
+    for k in range(frames):
+        cv2.imwrite(str(folder / "test" / f"r_{k}.png"), generator.integers(0, 256, (6, 8, 3), dtype=np.uint8))
+        pose = np.eye(4)
+        pose[:3, 3] = [0.1 * k, 0.02 * k, 4.0]
+        entries.append({"file_path": f"./test/r_{k}", "transform_matrix": pose.tolist()})
+    (folder / "transforms_test.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": entries}))
+    return folder
+
+
+def test_a_sequence_exported_with_a_trajectory_file_as_its_odometry(tmp_path, capsys):
+    folder = nerf_synthetic_folder(tmp_path / "scene")
+    stamps = np.arange(0.0, 2.0, 0.05)
+    poses = torch.stack(
+        [make_pose(so3_exp(torch.tensor([0.0, 0.1 * t, 0.0], dtype=torch.float64)), torch.tensor([t, 0.0, -0.5 * t], dtype=torch.float64)) for t in stamps]
+    )
+    write_tum(tmp_path / "vio.txt", stamps, poses)
+    flags = ["--frame-rate", "5", "--odom-rate", "5", "--image-rate", "5", "--odometry", str(tmp_path / "vio.txt")]
+    assert main(["bag", "export", str(folder), "--out", str(tmp_path / "bag"), *flags, "--quiet"]) == 0
+    capsys.readouterr()
+    odometry = OdometrySourceConfig(source=str(tmp_path / "vio.txt"))
+    replay = ScenarioSourceConfig(
+        sequence=str(folder), frame_rate=5.0, image_rate=5.0, vio=VioConfig(rate=5.0, rotation_noise=math.radians(0.057)), odometry=odometry
+    )
+    events = list(scenario_events(replay, 0))
+    read = list(bag_events(tmp_path / "bag"))
+    assert_same_events(read, events)
+    for event in (event for event in read if isinstance(event, OdometryEvent)):
+        (index,) = np.flatnonzero(np.isclose(stamps, event.stamp))
+        assert torch.allclose(event.T_odom_body, poses[index], atol=1e-9), "the file's pose at the stamp"
+
+
+def test_euroc_export_refuses_another_odometry(shared_data: Path, tmp_path, caplog):
+    with caplog.at_level(logging.ERROR):
+        assert main(["bag", "export", str(shared_data / "euroc_micro_V1_01"), "--out", str(tmp_path / "bag"), "--odometry", "rgbd"]) == 2
+    assert "a EuRoC folder is exported with its simulated odometry" in caplog.text and not (tmp_path / "bag").exists()
