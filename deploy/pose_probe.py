@@ -7,7 +7,8 @@ published port, optionally stop and start the router mid-stream, and print what 
 One client session (as a robot's consumer would hold) stays open throughout. Output fields: poses,
 rate_hz (poses per second between the first and the last of the first ``count``), first_pose_s
 (from the session's opening), and with ``--stop``/``--start``: down_s (the stop command's duration),
-recovery_s (from the start command's start to the first pose after it), poses_after.
+router_up_s (from the start command's start until a new session with the router opens), recovery_s (from
+the start command's start to the first pose after it), poses_after.
 """
 
 from __future__ import annotations
@@ -20,12 +21,12 @@ import subprocess
 import sys
 import time
 
+import zenoh
+
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import PoseEstimate
 from locnerf_services.transport import Inbox, TransportConfig, open_bus
-
-logger = logging.getLogger("pose_probe")
 
 
 def arrivals(inbox: Inbox[tuple[float, bytes]], count: int, timeout: float, what: str) -> list[float]:
@@ -44,6 +45,20 @@ def arrivals(inbox: Inbox[tuple[float, bytes]], count: int, timeout: float, what
             raise SystemExit(f"pose_probe: undecodable pose ({error})") from None
         times.append(item[0])
     return times
+
+
+def router_up_at(endpoint: str, since: float, timeout: float) -> float:
+    """Seconds from ``since`` until a new client session of ``endpoint`` opens (tried every 0.1 s):
+    the router answers Zenoh, not only the published port (Docker's proxy accepts TCP before)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            open_bus(TransportConfig(mode="client", connect=(endpoint,))).close()
+            return time.monotonic() - since
+        except zenoh.ZError:
+            if time.monotonic() > deadline:
+                raise SystemExit(f"pose_probe: no Zenoh session with {endpoint} within {timeout:.0f} s") from None
+            time.sleep(0.1)
 
 
 def run_command(command: str) -> float:
@@ -83,8 +98,14 @@ def main(argv: list[str] | None = None) -> int:
             while inbox.get(timeout=0.0) is not None:  # poses that passed before the router went down
                 pass
             starting = run_command(args.start)
+            router_up = router_up_at(args.connect, starting, args.timeout)
             after = arrivals(inbox, args.after, args.timeout, "after the restart")
-            report |= {"down_s": round(stopped - stopping, 2), "recovery_s": round(after[0] - starting, 2), "poses_after": len(after)}
+            report |= {
+                "down_s": round(stopped - stopping, 2),
+                "router_up_s": round(router_up, 2),
+                "recovery_s": round(after[0] - starting, 2),
+                "poses_after": len(after),
+            }
     finally:
         handle.close()
         bus.close()
