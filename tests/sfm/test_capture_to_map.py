@@ -135,3 +135,17 @@ def test_map_build_sfm_command_reuses_the_cached_reconstruction(capture, tmp_pat
     printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert printed["sfm"]["cached"] and printed[METRIC_FRAME_KEY]["metric"] and len(printed["sfm"]["frames"]) == FRAMES
     assert load_map(out, "cpu").metadata[METRIC_FRAME_KEY]["scale"]["source"] == "depth"
+
+
+def test_an_existing_colmap_model_is_taken_as_it_is(capture, tmp_path):
+    folder, cache, truth = capture
+    images, metadata = posed_capture(folder, cache)
+    model = tmp_path / "project"
+    shutil.copytree(metadata["sfm"]["model"], model / "sparse" / "0")
+    shutil.copytree(folder, model / "images")
+    again, again_metadata = posed_capture(
+        model, tmp_path / "unused", MetricOptions(depth=False, scale=metadata[METRIC_FRAME_KEY]["scale"]["metres_per_sfm_unit"])
+    )
+    assert again_metadata["sfm"]["kind"] == "colmap" and again_metadata[METRIC_FRAME_KEY]["scale"]["source"] == "user"
+    assert len(again) == FRAMES and not (tmp_path / "unused").exists()
+    torch.testing.assert_close(again.T_world_cam, images.T_world_cam, atol=1e-9, rtol=0)
