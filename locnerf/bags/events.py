@@ -5,7 +5,7 @@ Messages are translated with the ROS 2 node's conversions (:mod:`locnerf.ros2.co
 images undistorted onto their CameraInfo's pinhole camera -> :class:`ImageEvent`, each with the
 depth image of its stamp when the bag has a depth topic (nearest within ``DEPTH_TOLERANCE_NS``),
 ground truth (``T_world_body · T_body_cam``) -> :class:`GroundTruthEvent`. Events carry the
-messages' header stamps (seconds).
+messages' header stamps, exactly (``stamp_ns``) and as seconds.
 
 A bad message is counted by kind, reported through ``record(kind, reason)`` (the reason names the
 topic and what was expected) and skipped; the replay goes on. Kinds: those of the ROS 2 node
@@ -17,6 +17,7 @@ message stamped before the previous one of its topic).
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -113,7 +114,7 @@ class BagTranslator:
             stamp = convert.nanoseconds(message.header.stamp)
             pose = convert.pose_from_message(message.pose.pose)
             self._in_order(topic, stamp)
-            return [OdometryEvent(seconds_from_nanoseconds(stamp), pose)]
+            return [OdometryEvent(seconds_from_nanoseconds(stamp), pose, stamp)]
         if topic == chosen.image:
             return self._colour(topic, data)
         if topic == chosen.depth:
@@ -127,13 +128,13 @@ class BagTranslator:
         stamp = convert.nanoseconds(message.header.stamp)
         pixels = undistorted_colour(message, self.camera.camera, self.topics.image_type == COMPRESSED_IMAGE, self.topics.camera_info)
         self._in_order(topic, stamp)
-        event = ImageEvent(seconds_from_nanoseconds(stamp), pixels, self.camera.camera.intrinsics)
+        event = ImageEvent(seconds_from_nanoseconds(stamp), pixels, self.camera.camera.intrinsics, stamp_ns=stamp)
         if self.topics.depth is None:
             return [event]
         events = self._expire(None)  # a newer colour image: the waiting one goes alone
         depth = self._nearest_depth(stamp)
         if depth is not None:
-            return events + [ImageEvent(event.stamp, event.pixels, event.intrinsics, depth)]
+            return events + [dataclasses.replace(event, depth=depth)]
         self.waiting = (stamp, event)
         return events
 
@@ -150,7 +151,7 @@ class BagTranslator:
         if self.waiting is not None and abs(self.waiting[0] - stamp) <= DEPTH_TOLERANCE_NS:
             _, event = self.waiting
             self.waiting = None
-            return [ImageEvent(event.stamp, event.pixels, event.intrinsics, frame)]
+            return [dataclasses.replace(event, depth=frame)]
         return []
 
     def _nearest_depth(self, stamp: int) -> DepthFrame | None:
@@ -178,7 +179,7 @@ class BagTranslator:
             stamp = convert.nanoseconds(message.header.stamp)
             pose = convert.pose_from_message(message.pose if kind == POSE_STAMPED else message.pose.pose)
         self._in_order(topic, stamp)
-        return [GroundTruthEvent(seconds_from_nanoseconds(stamp), pose @ self.T_body_cam)]
+        return [GroundTruthEvent(seconds_from_nanoseconds(stamp), pose @ self.T_body_cam, stamp)]
 
 
 def _transform_pose(transform: object) -> torch.Tensor:

@@ -19,10 +19,12 @@ from locnerf.render.camera import PinholeIntrinsics
 
 @dataclass(frozen=True)
 class OdometryEvent:
-    """VIO output at ``stamp``: ``T_odom_body`` (4, 4) float64, metres."""
+    """VIO output at ``stamp``: ``T_odom_body`` (4, 4) float64, metres. ``stamp_ns``: the same stamp in
+    whole nanoseconds where the source has it exactly (a ROS 2 bag); None: derived from ``stamp``."""
 
     stamp: float
     T_odom_body: torch.Tensor
+    stamp_ns: int | None = None
 
 
 @dataclass(frozen=True)
@@ -38,20 +40,23 @@ class DepthFrame:
 
 @dataclass(frozen=True)
 class ImageEvent:
-    """A camera frame at ``stamp``: ``pixels`` (H, W, 3) uint8 RGB, and its ``depth`` from an RGB-D camera (None: colour only)."""
+    """A camera frame at ``stamp``: ``pixels`` (H, W, 3) uint8 RGB, and its ``depth`` from an RGB-D camera (None: colour only);
+    ``stamp_ns`` as :class:`OdometryEvent`'s."""
 
     stamp: float
     pixels: np.ndarray
     intrinsics: PinholeIntrinsics
     depth: DepthFrame | None = None
+    stamp_ns: int | None = None
 
 
 @dataclass(frozen=True)
 class GroundTruthEvent:
-    """The true camera pose ``T_world_cam`` (4, 4) float64 at ``stamp`` (metres, map's world frame)."""
+    """The true camera pose ``T_world_cam`` (4, 4) float64 at ``stamp`` (metres, map's world frame); ``stamp_ns`` as :class:`OdometryEvent`'s."""
 
     stamp: float
     T_world_cam: torch.Tensor
+    stamp_ns: int | None = None
 
 
 SensorEvent = OdometryEvent | ImageEvent | GroundTruthEvent

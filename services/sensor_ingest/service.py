@@ -14,12 +14,17 @@ from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, Sens
 logger = logging.getLogger(__name__)
 
 
+def _stamp(event: SensorEvent) -> dict[str, float | int]:
+    """The wire stamp of an event: its whole nanoseconds when the source gave them, else its float seconds."""
+    return {"stamp": event.stamp} if event.stamp_ns is None else {"stamp_ns": event.stamp_ns}
+
+
 def event_message(robot_id: str, event: SensorEvent, camera_frame: str = "camera") -> tuple[str, bytes]:
     """(key, payload) of one event."""
     if isinstance(event, OdometryEvent):
-        return keys.key(robot_id, keys.ODOMETRY), encode(Odometry(stamp=event.stamp, frame_id="odom", T_odom_body=event.T_odom_body.tolist()))
+        return keys.key(robot_id, keys.ODOMETRY), encode(Odometry(**_stamp(event), frame_id="odom", T_odom_body=event.T_odom_body.tolist()))
     if isinstance(event, GroundTruthEvent):
-        return keys.key(robot_id, keys.GROUND_TRUTH), encode(PoseStamped(stamp=event.stamp, frame_id="map", T_world_cam=event.T_world_cam.tolist()))
+        return keys.key(robot_id, keys.GROUND_TRUTH), encode(PoseStamped(**_stamp(event), frame_id="map", T_world_cam=event.T_world_cam.tolist()))
     if isinstance(event, ImageEvent):
         height, width = event.pixels.shape[:2]
         depth = event.depth
@@ -28,7 +33,7 @@ def event_message(robot_id: str, event: SensorEvent, camera_frame: str = "camera
             offset = None if depth.T_cam_depth is None else depth.T_cam_depth.tolist()
             depth_header = DepthHeader(width=depth.millimetres.shape[1], height=depth.millimetres.shape[0], intrinsics=depth.intrinsics, T_cam_depth=offset)
         header = ImageHeader(
-            stamp=event.stamp, frame_id=camera_frame, encoding="rgb8", width=width, height=height, intrinsics=event.intrinsics, depth=depth_header
+            **_stamp(event), frame_id=camera_frame, encoding="rgb8", width=width, height=height, intrinsics=event.intrinsics, depth=depth_header
         )
         return keys.key(robot_id, keys.IMAGE), encode_image(header, event.pixels, None if depth is None else depth.millimetres)
     raise TypeError(f"unknown sensor event {type(event).__name__}")

@@ -16,10 +16,13 @@ from locnerf.bags.writer import BagWriter
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry.frames import camera_extrinsic_opencv_to_opengl
 from locnerf.geometry.se3 import interpolate_pose
+from locnerf.messages.codec import decode, decode_rgbd
+from locnerf.messages.schemas import Odometry, PoseStamped
 from locnerf.messages.stamps import nanoseconds_from_seconds
 from locnerf.ros2 import messages as build
 from locnerf.ros2.types import CAMERA_INFO, IMAGE, ODOMETRY, TF_MESSAGE, deserialize
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
+from locnerf_services.sensor_ingest.service import event_message
 from tests.bags.synthetic import COLOUR, random_pose, sensor_stream, write_events
 
 
@@ -126,3 +129,19 @@ def test_a_bag_as_the_offline_tracking_run(tmp_path):
     assert torch.allclose(halfway, interpolate_pose(truth[0].T_world_cam, truth[1].T_world_cam, 0.5), atol=1e-5), (
         "halfway along the geodesic (float stamps near 1.7e9 s)"
     )
+
+
+def test_stamps_stay_whole_nanoseconds_to_the_wire(tmp_path):
+    stamp = 1_700_000_000_123_456_789  # 1.7e9 s: float seconds are 238 ns apart here
+    with BagWriter(tmp_path / "bag") as bag:
+        bag.write("/odom", ODOMETRY, stamp, build.odometry_message(stamp, torch.eye(4, dtype=torch.float64)))
+        bag.write("/ground_truth", "geometry_msgs/msg/PoseStamped", stamp, build.pose_stamped_message(stamp, torch.eye(4, dtype=torch.float64)))
+        bag.write("/camera/camera_info", CAMERA_INFO, stamp, build.camera_info_message(stamp, COLOUR, "camera"))
+        bag.write("/camera/image_raw", IMAGE, stamp, build.image_message(stamp, np.zeros((12, 16, 3), np.uint8), "rgb8", "camera"))
+    events = list(bag_events(tmp_path / "bag"))
+    assert [event.stamp_ns for event in events] == [stamp] * 3
+    schemas = {OdometryEvent: Odometry, GroundTruthEvent: PoseStamped}
+    for event in events:
+        _key, payload = event_message("r", event)
+        wire = decode_rgbd(payload)[0] if isinstance(event, ImageEvent) else decode(payload, schemas[type(event)])
+        assert wire.stamp_ns == stamp
