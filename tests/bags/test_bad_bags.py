@@ -5,6 +5,8 @@ skipped, and the replay goes on to the end."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -16,6 +18,8 @@ from locnerf.errors import DatasetError
 from locnerf.ros2 import messages as build
 from locnerf.ros2.types import CAMERA_INFO, IMAGE, ODOMETRY, POSE_STAMPED
 from locnerf.sim.events import ImageEvent, OdometryEvent
+from locnerf_services.runtime import load_service_config
+from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
 from tests.bags.synthetic import COLOUR, sensor_stream, write_events
 
 EYE = torch.eye(4, dtype=torch.float64)
@@ -140,3 +144,10 @@ def test_ground_truth_on_tf_needs_the_frame(tmp_path):
         bag.write("/tf", "tf2_msgs/msg/TFMessage", 1, build.tf_message([build.transform_stamped_message(1, "world", "body", EYE)]))
     with pytest.raises(DatasetError, match=r"ground truth from /tf needs ground_truth_frame"):
         next(bag_events(tmp_path / "tf", BagTopics(ground_truth="/tf")))
+
+
+def test_the_example_ingest_configuration_loads_and_names_its_bag():
+    config = load_service_config(IngestConfig, Path(__file__).resolve().parents[2] / "deploy/config/ingest_rosbag.toml", {})
+    assert config.source == "rosbag" and config.rosbag.topics == BagTopics()
+    with pytest.raises(FileNotFoundError, match="bag /data/bags/run: no such file or folder"):
+        next(sensor_events(config))
