@@ -58,7 +58,7 @@ def _nearest_gap(px: float, py: float, pz: float, gap: np.ndarray, row: int, pla
     return gap[nx + ny * row + nz * plane], nx, ny, nz
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _first_occupied(
     ray: int, start: np.ndarray, step: np.ndarray, counts: np.ndarray, gap: np.ndarray, row: int, plane: int, cells: np.ndarray, brick: int
 ) -> tuple[int, int]:
@@ -81,7 +81,7 @@ def _first_occupied(
     return count, 1 << (3 * _KEY_BITS)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _march_ray(
     ray: int,
     k: int,
