@@ -40,17 +40,17 @@ ESTIMATE_COLOUR = (230, 60, 40)
 TRUTH_COLOUR = (40, 200, 80)
 
 
-def blueprint(eye: tuple[np.ndarray, np.ndarray] | None = None) -> rrb.Blueprint:
-    """The layout: the 3-D world on the left, looked at from ``eye`` = (position, target) when given; camera image
+def blueprint(eye: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> rrb.Blueprint:
+    """The layout: the 3-D world on the left, looked at from ``eye`` = (position, target, up) when given; camera image
     and render, then the time series, on the right; the time cursor follows the newest data."""
-    eye_controls = None if eye is None else rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=(0.0, 1.0, 0.0))
+    eye_controls = None if eye is None else rrb.EyeControls3D(position=eye[0], look_target=eye[1], eye_up=eye[2])
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(name="map, particles, poses", origin="world", eye_controls=eye_controls),
             rrb.Vertical(
                 rrb.Horizontal(
                     rrb.Spatial2DView(name="camera", origin="camera/image"),
-                    rrb.Spatial2DView(name="map rendered at the estimate", origin="camera/render"),
+                    rrb.Spatial2DView(name="map at the estimate", origin="camera/render"),
                 ),
                 rrb.TimeSeriesView(name="error and spread (m)", origin="/", contents=["error/translation_m", "filter/spread_m"]),
                 rrb.TimeSeriesView(name="error (°)", origin="error/rotation_deg"),
@@ -107,14 +107,23 @@ def _at(recording: rr.RecordingStream, stamp_ns: int) -> None:
 
 
 def log_map(recording: rr.RecordingStream, cloud: MapCloud) -> None:
-    """The map's occupied voxels, once (static), and the layout again with the 3-D view looking down on them
-    from above one corner."""
+    """The map's occupied voxels, once (static); the world's up axis (the coordinate axis nearest the map's
+    up); and the layout again with the 3-D view looking down on the map from above one corner."""
     points = cloud.points.numpy()
     recording.log(MAP, rr.Points3D(points, colors=cloud.colours.numpy(), radii=0.5 * cloud.voxel), static=True)
+    up = np.asarray(cloud.up)
+    axis = int(np.abs(up).argmax())
+    sign = 1.0 if up[axis] > 0 else -1.0
+    coordinates = getattr(rr.ViewCoordinates, f"RIGHT_HAND_{'XYZ'[axis]}_{'UP' if sign > 0 else 'DOWN'}")
+    recording.log("world", coordinates, static=True)
     low, high = points.min(0), points.max(0)
     centre, size = (low + high) / 2, high - low
-    eye = centre + np.array([0.45 * size[0], 0.9 * max(size[0], size[2]), 0.75 * size[2]])
-    recording.send_blueprint(blueprint((eye, centre)))
+    across = [a for a in range(3) if a != axis]
+    eye = centre.copy()
+    eye[across[0]] += 0.45 * size[across[0]]
+    eye[across[1]] += 0.75 * size[across[1]]
+    eye[axis] += sign * 0.9 * max(size[across[0]], size[across[1]])
+    recording.send_blueprint(blueprint((eye, centre, np.eye(3)[axis] * sign)))
 
 
 def _pinhole(intrinsics: PinholeIntrinsics, colour: tuple[int, int, int], plane: float) -> rr.Pinhole:

@@ -26,11 +26,13 @@ MIN_OPACITY = 0.5
 @dataclass(frozen=True)
 class MapCloud:
     """Occupied voxels of a map: ``points`` (P, 3) float32 voxel centres in metres (metric world frame),
-    ``colours`` (P, 3) uint8 RGB, ``voxel`` the voxel edge in metres."""
+    ``colours`` (P, 3) uint8 RGB, ``voxel`` the voxel edge in metres, ``up`` the unit vector opposite to
+    gravity in the metric world frame."""
 
     points: torch.Tensor
     colours: torch.Tensor
     voxel: float
+    up: tuple[float, float, float]
 
 
 def points_to_metric(points: torch.Tensor, normalization: MapNormalization) -> torch.Tensor:
@@ -95,4 +97,7 @@ def map_cloud(radiance_map: RadianceMap, views: int = 24, width: int = 64, voxel
         raise LocnerfInputError(f"{type(radiance_map).__name__}: no surface seen from {views} viewpoints (below the cameras: {cut_above_cameras})")
     voxel = max(float((points.amax(0) - points.amin(0)).max()) / radiance_map.normalization.scale, 1e-6) / voxels_across
     centres, colours = voxel_cloud(points_to_metric(points, radiance_map.normalization), colours, voxel)
-    return MapCloud(centres.float(), (colours * 255).round().to(torch.uint8), voxel)
+    normalization = radiance_map.normalization
+    R_dataset_map = torch.tensor(normalization.T_map_dataset, dtype=torch.float64)[:3, :3].T
+    up = R_dataset_map @ torch.tensor(normalization.up, dtype=torch.float64)
+    return MapCloud(centres.float(), (colours * 255).round().to(torch.uint8), voxel, tuple((up / up.norm()).tolist()))
