@@ -48,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--marcher", choices=("fused", "torch"), default="fused", help="grid maps on the CPU: compiled per-ray loop, or the batched torch marcher (GPUs)"
     )
     render.add_argument("--profile", action="store_true", help="also print the update step's CPU time by stage (torch.profiler)")
+    render.add_argument(
+        "--compare-marchers", action="store_true", help="metric grid maps: also print the largest differences between the compiled and the torch marcher"
+    )
     render.add_argument("--json", action="store_true", help="print JSON")
     render.set_defaults(func=run_render)
     bench_world.add_target(targets)
@@ -118,6 +121,10 @@ def run_render(args: argparse.Namespace) -> int:
         "speedup_vs_mlp": (rays / update_seconds) / mlp_rays_per_second,
         "note": f"MLP timed on {subset} of the {rays} rays (scaled)" if subset < rays else "MLP timed on all rays",
     }
+    if args.compare_marchers:
+        if not hasattr(radiance_map, "field") or surface_renderer(radiance_map) is None:
+            raise LocnerfInputError(f"--compare-marchers: the map {args.map} is not a metric grid map")
+        result["fused_vs_torch"] = bench_render.marcher_differences(radiance_map, origins.cpu(), directions.cpu())
     if args.profile:
         observed = torch.rand(args.pixels, 3, generator=generator).to(device)
 

@@ -66,3 +66,25 @@ def stage_profile(update: Callable[[], object], repeats: int) -> dict[str, float
         wall = time.perf_counter() - start
     stages = {event.key: event.cpu_time_total / 1000.0 / repeats for event in profiler.key_averages() if event.key.startswith(STAGE_PREFIXES)}
     return dict(sorted(stages.items(), key=lambda item: -item[1])) | {"update step (wall)": 1000.0 * wall / repeats}
+
+
+def marcher_differences(radiance_map, origins: torch.Tensor, directions: torch.Tensor) -> dict[str, float]:  # noqa: ANN001
+    """Largest and mean absolute differences between the compiled and the torch marcher's surface renders of the same
+    rays (R, 3) x2 on a grid map: colour, opacity, and surface point (map units, rays at least 1 % opaque)."""
+    field = radiance_map.field
+    chosen = field.fused_march
+    try:
+        field.fused_march = False
+        colour_torch, point_torch, opacity_torch = radiance_map.render_surface(origins, directions)
+        field.fused_march = True
+        colour, point, opacity = radiance_map.render_surface(origins, directions)
+    finally:
+        field.fused_march = chosen
+    seen = opacity_torch > 0.01
+    point_difference = (point - point_torch)[seen].abs()
+    return {
+        "colour_max": float((colour - colour_torch).abs().max()),
+        "colour_mean": float((colour - colour_torch).abs().mean()),
+        "opacity_max": float((opacity - opacity_torch).abs().max()),
+        "point_max": float(point_difference.max()) if len(point_difference) else 0.0,
+    }
