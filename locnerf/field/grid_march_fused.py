@@ -238,23 +238,25 @@ def fused_march(
         step: (R, 3) vertex-coordinate increment from one sample to the next.
         counts: (R,) samples on each ray (every sample within half a vertex of the grid).
         table: the skip table of the occupancy (:class:`locnerf.field.grid_march.SkipTable`).
-        grid: (V, C) raw channels (σ, 3 diffuse, C - 4 features), vertex-major (x fastest); float32 or float16.
+        grid: (V, C) raw channels (σ, 3 diffuse, C - 4 features), vertex-major (x fastest); float32 or float64.
         resolution: (Rx, Ry, Rz) vertices per axis.
         shift: added to raw σ before softplus; scale: multiplies the softplus (σ·δ of one render step).
         termination_transmittance: a ray stops once its transmittance falls below this.
         with_position: also composite the sample positions (vertex coordinates) as three more channels.
     Returns:
-        composited (R, C - 1 [+ 3]) float32 (Σ w_k c_k) and log transmittance (R,) float32 after the last sample composited.
+        composited (R, C - 1 [+ 3]) (Σ w_k c_k) and log transmittance (R,) after the last sample composited, float64 for
+        float64 rays and float32 otherwise (the loop computes in float64).
     """
     if start.device.type != "cpu":
         raise ValueError(f"fused_march runs on the CPU; got tensors on {start.device}")
     rays, channels = start.shape[0], grid.shape[1]
-    out = np.empty((rays, channels - 1 + (3 if with_position else 0)), dtype=np.float32)
-    log_transmittance = np.empty(rays, dtype=np.float32)
+    dtype = np.float64 if start.dtype == torch.float64 else np.float32
+    out = np.empty((rays, channels - 1 + (3 if with_position else 0)), dtype=dtype)
+    log_transmittance = np.empty(rays, dtype=dtype)
     first, keys = np.empty(rays, dtype=np.int64), np.empty(rays, dtype=np.int64)
     lattice = (
-        np.ascontiguousarray(start.detach().numpy(), dtype=np.float32),
-        np.ascontiguousarray(step.detach().numpy(), dtype=np.float32),
+        np.ascontiguousarray(start.detach().numpy(), dtype=dtype),
+        np.ascontiguousarray(step.detach().numpy(), dtype=dtype),
         np.ascontiguousarray(counts.numpy(), dtype=np.int64),
         table.gap.numpy(),
         table.row,
