@@ -9,6 +9,7 @@ import torch
 
 from locnerf.errors import MapFileError
 from locnerf.field.grid import MAX_GRID_VERTICES, GridField, GridFieldConfig
+from locnerf.field.grid_march_fused import compile_ahead
 from locnerf.field.map_info import MapInfo
 from locnerf.field.map_state import check_state_dict, entry, tensor_of_shape, validated
 from locnerf.field.stored_map import StoredMap
@@ -92,6 +93,8 @@ class GridMap(StoredMap):
         field = GridField(box, config, None if background is None else tuple(float(c) for c in background), resolution=resolution)
         check_state_dict(weights, field.state_dict(), "grid state: weights")
         field.load_state_dict(weights)
+        if device.type == "cpu":
+            compile_ahead()
         return cls(field.to(device).eval(), info)
 
 

@@ -40,12 +40,13 @@ import numpy as np
 import torch
 from torch.profiler import record_function
 
-from locnerf.field.grid_march import JUMP_MARGIN, SkipTable
+from locnerf.field.grid_march import JUMP_MARGIN, SkipTable, chebyshev_distance
 
 _SOFTPLUS_THRESHOLD = 20.0  # torch.nn.functional.softplus returns x above this
 _CHUNKS_PER_THREAD = 8  # rays are split in chunks, each with its own scratch row
 _PARALLEL_LAUNCH = threading.Lock()
 """Parallel renders of one process take turns: numba's workqueue threading layer (where OpenMP and TBB are missing) aborts on concurrent launches."""
+_COMPILED = False  # compile_ahead has run in this process
 _KEY_BITS = 6  # bits per axis of the brick coordinates that order the rays (2**18 buckets)
 
 
@@ -281,3 +282,16 @@ def fused_march(
         with record_function("march: skip, gather, shade, composite"):
             _march_serial(order, first, *lattice, *shading)
     return torch.from_numpy(out), torch.from_numpy(log_transmittance)
+
+
+def compile_ahead() -> None:
+    """Compile (or load from numba's cache) the serial float32 loop now, once per process: a worker that loads a map then
+    pays the first-use cost (about 4 s of CPU without a cache, a fraction of a second with one) before it serves, not in
+    its first update. Renders one ray through a 2³ grid."""
+    global _COMPILED
+    if _COMPILED:
+        return
+    occupancy = torch.ones(2, 2, 2, dtype=torch.bool)
+    start, step = torch.full((1, 3), 0.25), torch.full((1, 3), 0.25)
+    fused_march(start, step, torch.tensor([3]), SkipTable(chebyshev_distance(occupancy, 1)), torch.zeros(8, 4), (2, 2, 2), 0.0, 1.0, 1e-3, True)
+    _COMPILED = True
