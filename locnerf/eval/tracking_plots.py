@@ -53,7 +53,8 @@ def plot_error_and_drift(record: TrackingRecord, drift: dict[str, list[float]], 
         (ax_t, record.translation_error.tolist(), drift["ape_translation"], "translation error (m)"),
         (ax_r, record.rotation_error_deg.tolist(), drift["ape_rotation_deg"], "rotation error (deg)"),
     ):
-        axis.plot(drift["stamps"], odometry, color="tab:orange", linewidth=1.2, label="odometry alone (aligned at its first pose)")
+        # The first pose is aligned exactly (error 0): left out of the log scale.
+        axis.plot(drift["stamps"][1:], odometry[1:], color="tab:orange", linewidth=1.2, label="odometry alone (aligned at its first pose)")
         axis.plot(stamps, errors, color="tab:blue", linewidth=1.2, label="locnerf estimate")
         axis.set_yscale("log")
         axis.set_ylabel(label)
