@@ -33,6 +33,7 @@ class Command:
 
 COMMANDS: dict[str, Command] = {
     "eval": Command("the paper's experiments (single image, global, tracking)", lambda: importlib.import_module("locnerf_cli.eval")),
+    "odometry": Command("RGB-D odometry of a data set's frames as a TUM trajectory", lambda: importlib.import_module("locnerf_cli.odometry")),
     "localize": Command("single-image localization trials (paper protocols)", lambda: importlib.import_module("locnerf_cli.localize")),
     "map": Command("build, evaluate, render and describe map files", lambda: importlib.import_module("locnerf_cli.map")),
     "bench": Command(
