@@ -21,13 +21,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-import cv2
 import numpy as np
 import torch
 
 from locnerf.errors import DatasetError
 from locnerf.geometry.averaging import project_to_rotation
 from locnerf.geometry.se3 import pose_inverse
+from locnerf.geometry.similarity import fit_similarity
 from locnerf.render.camera import PinholeIntrinsics
 
 logger = logging.getLogger(__name__)
@@ -156,24 +156,6 @@ def sfm_pose_of(poses: dict[str, SfmPose], sequence: str, frame: int, files: lis
     return candidates[0]
 
 
-def similarity_rotation(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float]:
-    """Rotation (3, 3) and scale of the similarity (Umeyama, OpenCV's ``estimateAffine3D``) taking the
-    (N, 3) points ``source`` onto ``target``, float64.
-
-    Raises:
-        DatasetError: for fewer than 3 points, or points that span no plane.
-    """
-    if len(source) < 3:
-        raise DatasetError(f"a similarity fit needs at least 3 camera centres, got {len(source)}")
-    try:
-        transform, scale = cv2.estimateAffine3D(
-            np.ascontiguousarray(source, dtype=np.float64), np.ascontiguousarray(target, dtype=np.float64), force_rotation=True
-        )
-    except cv2.error:
-        raise DatasetError(f"similarity fit of {len(source)} camera centres: they span no plane") from None
-    return transform[:, :3], float(scale)
-
-
 def rotated_axis(rotation: np.ndarray, axis: tuple[float, float, float]) -> tuple[float, float, float]:
     """``rotation @ axis`` as a unit 3-tuple."""
     value = rotation @ np.asarray(axis, dtype=np.float64)
@@ -210,9 +192,10 @@ def sfm_up_axis(sfm: np.ndarray, dslam: np.ndarray, up: tuple[float, float, floa
     similarity fitted on the two sets of camera centres (``sfm``, ``dslam``: (K, 4, 4) camera-to-world
     of the same frames; every frame of the scene, so that each split gets the same axis)."""
     try:
-        rotation, scale = similarity_rotation(dslam[:, :3, 3], sfm[:, :3, 3])
-        logger.info("SfM world: similarity to the dSLAM world over %d camera centres, scale %.4f", len(sfm), scale)
-    except DatasetError as error:  # centres that span no plane (a camera that barely moved): the orientations' mean rotation
+        similarity = fit_similarity(dslam[:, :3, 3], sfm[:, :3, 3])
+        rotation = similarity.rotation
+        logger.info("SfM world: similarity to the dSLAM world over %d camera centres, scale %.4f", len(sfm), similarity.scale)
+    except ValueError as error:  # centres that span no plane (a camera that barely moved): the orientations' mean rotation
         logger.warning("%s; the up axis follows the mean rotation between the two ground truths' orientations", error)
         rotation = project_to_rotation(torch.from_numpy(np.einsum("kij,klj->il", sfm[:, :3, :3], dslam[:, :3, :3]))).numpy()
     return rotated_axis(rotation, up)

@@ -6,8 +6,6 @@ the pose trajectory from the bag."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
@@ -22,9 +20,8 @@ from locnerf.ros2.naming import data_key
 from locnerf.ros2.types import deserialize
 from locnerf_services.ros2.config import Ros2Config
 from locnerf_services.ros2.recorder import Ros2Recorder, default_topics
-from tests.ros2 import messages
-from tests.services.test_ros2_bridge import T_BODY_CAM, drain, pose, setup
-from tests.services.test_ros2_mcap import assert_same, pose_of
+from tests.services.test_ros2_bridge import T_BODY_CAM, setup
+from tests.services.test_ros2_mcap import assert_same, pose_of, publish_initial_pose_and_odometry
 
 
 def decoded_messages(bag) -> dict[str, list[tuple[int, object]]]:
@@ -51,15 +48,7 @@ def test_the_filters_outputs_and_its_odometry_decode_from_the_bag_with_mcap_ros2
         bus.subscribe(data_key(0, topic, ros_type), lambda _key, payload, topic=topic: published.setdefault(topic, []).append(payload))
     with BagWriter(tmp_path / "bag") as bag:
         recorder = Ros2Recorder(bus, bag, topics)
-        T_map_base = pose([0.0, 0.0, 0.5], [0.3, -0.2, 0.1])
-        covariance = np.diag([1e-8, 2e-8, 3e-8, 1e-10, 2e-10, 3e-10]).reshape(-1).tolist()
-        publishers["initialpose"].publish(messages.initial_pose(10.0, T_map_base, covariance))
-        drain(driver)
-        T_odom_base = pose([0.0, 0.0, -0.2], [1.0, 2.0, 0.0])
-        publishers["odom"].publish(messages.odometry(10.25, T_odom_base))
-        drain(driver)
-        loop._last_particles = -math.inf
-        drain(driver, 2)
+        T_map_base, T_odom_base = publish_initial_pose_and_odometry(loop, driver, publishers)
         recorder.step(0.0)
         recorder.close()
     assert recorder.bad.total == 0 and recorder.inbox.dropped == 0

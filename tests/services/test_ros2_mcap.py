@@ -116,11 +116,9 @@ def assert_same(ours: object, theirs: object, path: str = "") -> None:
         assert ours == theirs, (path, ours, theirs)
 
 
-def test_amcl_pose_particle_cloud_and_tf_decode_with_mcap_ros2_support():
-    _world, loop, bus, driver, publishers, _received = setup()
-    payloads: dict[str, list[bytes]] = {topic: [] for topic in TOPICS}
-    for topic, (ros_type, _schema) in TOPICS.items():
-        bus.subscribe(data_key(0, topic, ros_type), lambda _key, payload, topic=topic: payloads[topic].append(payload))
+def publish_initial_pose_and_odometry(loop, driver, publishers) -> tuple[torch.Tensor, torch.Tensor]:
+    """Drive the bridge through one cycle of every output: an initial pose, an odometry message, and a particle cloud due.
+    Returns the (4, 4) ``T_map_base`` given as the initial pose and the ``T_odom_base`` of the odometry."""
     T_map_base = pose([0.0, 0.0, 0.5], [0.3, -0.2, 0.1])
     covariance = np.diag([1e-8, 2e-8, 3e-8, 1e-10, 2e-10, 3e-10]).reshape(-1).tolist()
     publishers["initialpose"].publish(messages.initial_pose(10.0, T_map_base, covariance))
@@ -130,6 +128,15 @@ def test_amcl_pose_particle_cloud_and_tf_decode_with_mcap_ros2_support():
     drain(driver)
     loop._last_particles = -math.inf
     drain(driver, 2)
+    return T_map_base, T_odom_base
+
+
+def test_amcl_pose_particle_cloud_and_tf_decode_with_mcap_ros2_support():
+    _world, loop, bus, driver, publishers, _received = setup()
+    payloads: dict[str, list[bytes]] = {topic: [] for topic in TOPICS}
+    for topic, (ros_type, _schema) in TOPICS.items():
+        bus.subscribe(data_key(0, topic, ros_type), lambda _key, payload, topic=topic: payloads[topic].append(payload))
+    T_map_base, T_odom_base = publish_initial_pose_and_odometry(loop, driver, publishers)
     assert all(payloads.values()), {topic: len(found) for topic, found in payloads.items()}
 
     decoded = round_trip(payloads)
