@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -129,17 +130,32 @@ def read_pose(path: Path) -> np.ndarray:
     return pose
 
 
-def read_depth(path: Path, stride: int) -> np.ndarray:
-    """(H/stride, W/stride) float32 metres from a uint16-millimetre depth PNG, 0 where invalid
+@dataclass(frozen=True)
+class DepthUnits:
+    """How a uint16 depth PNG stores metres: ``per_metre`` units in a metre, the values that mean "no depth",
+    and the unit's short and long names for messages."""
+
+    per_metre: float
+    invalid: tuple[int, ...]
+    short: str
+    long: str
+
+
+MILLIMETRES = DepthUnits(1000.0, INVALID_DEPTH_MM, "mm", "millimetres")
+"""7-Scenes' depth (the Kinect's 65535 marks no reading too)."""
+
+
+def read_depth(path: Path, stride: int, units: DepthUnits = MILLIMETRES) -> np.ndarray:
+    """(H/stride, W/stride) float32 metres from a uint16 depth PNG in ``units``, 0 where invalid
     (nearest subsampling: averaging would mix in the invalid zeros)."""
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
-        raise FileNotFoundError(f"{path}: no such file or not an image (the frame's uint16 depth in mm)")
+        raise FileNotFoundError(f"{path}: no such file or not an image (the frame's uint16 depth in {units.short})")
     if raw.dtype != np.uint16 or raw.ndim != 2:
-        raise DatasetError(f"{path}: {raw.dtype} image of shape {raw.shape}, expected single-channel uint16 millimetres")
+        raise DatasetError(f"{path}: {raw.dtype} image of shape {raw.shape}, expected single-channel uint16 {units.long}")
     depth = raw[::stride, ::stride]
-    metres = depth.astype(np.float32) / 1000.0
-    metres[np.isin(depth, INVALID_DEPTH_MM)] = 0.0
+    metres = depth.astype(np.float32) / units.per_metre
+    metres[np.isin(depth, units.invalid)] = 0.0
     return metres
 
 

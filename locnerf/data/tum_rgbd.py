@@ -24,14 +24,13 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 from tqdm import tqdm
 
 from locnerf.data.image_files import read_rgb, stack_same_size
 from locnerf.data.posed_images import PosedImages
-from locnerf.data.seven_scenes import NEAR_M, scene_box
+from locnerf.data.seven_scenes import NEAR_M, DepthUnits, read_depth, scene_box
 from locnerf.data.trajectory_files import read_trajectory, sample_trajectory
 from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
@@ -40,7 +39,7 @@ from locnerf.render.camera import PinholeIntrinsics
 
 logger = logging.getLogger(__name__)
 
-DEPTH_UNITS_PER_M = 5000.0
+TUM_DEPTH = DepthUnits(5000.0, (0,), "1/5000 m", "in units of 1/5000 m (5000 per metre)")
 MAX_DIFFERENCE = 0.02
 """Largest colour-depth stamp difference of an associated pair, seconds (associate.py's default)."""
 MAX_TRUTH_GAP = 0.1
@@ -106,15 +105,6 @@ def _intrinsics(folder: Path, width: int, height: int) -> PinholeIntrinsics:
     return PinholeIntrinsics(fx=matrix[0, 0], fy=matrix[1, 1], cx=matrix[0, 2], cy=matrix[1, 2], width=width, height=height)
 
 
-def _read_depth(path: Path, stride: int) -> np.ndarray:
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise FileNotFoundError(f"{path}: no such file or not an image (the frame's 16-bit depth, 5000 per metre)")
-    if raw.dtype != np.uint16 or raw.ndim != 2:
-        raise DatasetError(f"{path}: {raw.dtype} image of shape {raw.shape}, expected single-channel uint16 (5000 per metre)")
-    return raw[::stride, ::stride].astype(np.float32) / DEPTH_UNITS_PER_M
-
-
 def read_tum_rgbd(folder: str | Path, split: str = "train", downscale: int = DEFAULT_DOWNSCALE, stride: int = 1, depth: bool = True) -> PosedImages:
     """Read one split of a TUM RGB-D sequence folder.
 
@@ -156,7 +146,7 @@ def read_tum_rgbd(folder: str | Path, split: str = "train", downscale: int = DEF
     T_world_cam = opencv_to_opengl(truth[torch.from_numpy(keep)])
     depths = None
     if depth:
-        depths = torch.from_numpy(np.stack([_read_depth(folder / depth_names[pairs[i]], downscale) for i in keep]))
+        depths = torch.from_numpy(np.stack([read_depth(folder / depth_names[pairs[i]], downscale, TUM_DEPTH) for i in keep]))
         if depths.shape[1:] != images.shape[1:3]:
             raise DatasetError(
                 f"{folder / depth_names[pairs[keep[0]]]}: depth of {tuple(depths.shape[1:])} after ÷{downscale}, expected the colour's {images.shape[1:3]}"

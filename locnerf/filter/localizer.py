@@ -257,9 +257,8 @@ class Localizer:
 
     # ----------------------------------------------------------------- prediction
     def noise_sigma(self, periods: float = 1.0) -> torch.Tensor:
-        """(6,) current prediction-noise standard deviations (annealed) for an increment spanning
-        ``periods`` odometry periods: δ is a random walk, its variance grows with the time bridged,
-        so σ scales by √periods (periods below 1 count as 1: a prediction never adds less than one step's noise)."""
+        """(6,) current prediction-noise standard deviations (annealed) over ``periods`` odometry periods: δ is a random
+        walk whose variance grows with the time bridged, so σ scales by √periods (at least one period's noise)."""
         return self.config.motion.sigma_vector(noise_scale(self.stage, self.config.annealing) * math.sqrt(max(periods, 1.0)))
 
     def noise_pivot(self, periods: float = 1.0) -> PivotNoise | None:
@@ -267,8 +266,7 @@ class Localizer:
         return self.config.motion.pivot_noise(noise_scale(self.stage, self.config.annealing) * math.sqrt(max(periods, 1.0)))
 
     def predict(self, odometry: torch.Tensor | None = None, periods: float = 1.0) -> None:
-        """Eq. 4 for every particle: move by the odometry increment ``T_prev_curr`` (4, 4), add noise
-        for ``periods`` odometry periods (more than 1 where the odometry had a gap)."""
+        """Eq. 4 for every particle: move by the odometry increment ``T_prev_curr`` (4, 4), add ``periods`` periods' noise."""
         particles = self._require_particles()
         if odometry is not None:
             validate_poses(odometry, name="odometry increment")
