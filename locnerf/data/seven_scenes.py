@@ -60,7 +60,7 @@ NEAR_M = 0.1
 DEFAULT_UP = (0.0, -1.0, 0.0)
 
 
-def _sequence_folders(folder: Path, split: str) -> list[Path]:
+def sequence_folders(folder: Path, split: str) -> list[Path]:
     """The ``seq-XX`` folders a split names, in the order of its split files."""
     if split not in SPLIT_FILES:
         raise DatasetError(f"split {split!r}: expected one of {sorted(SPLIT_FILES)} for a 7-Scenes folder ({folder})")
@@ -83,7 +83,7 @@ def _sequence_folders(folder: Path, split: str) -> list[Path]:
     return folders
 
 
-def _frame_stems(sequence: Path) -> list[Path]:
+def frame_stems(sequence: Path) -> list[Path]:
     """``seq-NN/frame-NNNNNN`` stems of a sequence's colour images, sorted."""
     stems = sorted({p.parent / p.name.split(".")[0] for p in sequence.glob("frame-*.color.*") if p.suffix.lower() in (".png", ".jpg", ".jpeg")})
     if not stems:
@@ -91,7 +91,7 @@ def _frame_stems(sequence: Path) -> list[Path]:
     return stems
 
 
-def _colour_path(stem: Path) -> Path:
+def colour_path(stem: Path) -> Path:
     for suffix in (".color.png", ".color.jpg", ".color.jpeg"):
         path = stem.with_name(stem.name + suffix)
         if path.is_file():
@@ -169,7 +169,7 @@ def _depth_ratio(colour: tuple[int, int], depth: tuple[int, int], path: Path) ->
     return ratio
 
 
-def _depth_camera(folder: Path, colour: PinholeIntrinsics) -> PinholeIntrinsics:
+def depth_camera_of(folder: Path, colour: PinholeIntrinsics) -> PinholeIntrinsics:
     """The depth camera at the colour camera's full resolution (``camera-intrinsics.txt`` or 585 px)."""
     path = folder / "camera-intrinsics.txt"
     if not path.is_file():
@@ -244,14 +244,14 @@ def read_seven_scenes(
     folder = Path(folder)
     if downscale < 1 or stride < 1:
         raise DatasetError(f"downscale={downscale}, stride={stride}: expected integers >= 1")
-    every = [stem for sequence in _sequence_folders(folder, "all") for stem in _frame_stems(sequence)]
+    every = [stem for sequence in sequence_folders(folder, "all") for stem in frame_stems(sequence)]
     position = {stem: i for i, stem in enumerate(every)}
-    stems = [stem for sequence in _sequence_folders(folder, split) for stem in _frame_stems(sequence)][::stride]
+    stems = [stem for sequence in sequence_folders(folder, split) for stem in frame_stems(sequence)][::stride]
     if check_pose_source(poses) == "sfm":
         pose_table, intrinsics = sfm_poses_of(folder, stems, intrinsics)
     else:
         pose_table = np.stack([read_pose(stem.with_name(stem.name + ".pose.txt")) for stem in stems])
-    paths = [_colour_path(stem) for stem in stems]
+    paths = [colour_path(stem) for stem in stems]
     images = stack_same_size([read_rgb(p, float(downscale)) for p in tqdm(paths, desc=f"7-Scenes {split}", unit="frame", leave=False)], paths)
     full = (images.shape[2] * downscale, images.shape[1] * downscale)
     if (round(full[0]), round(full[1])) != (intrinsics.width, intrinsics.height):
@@ -275,7 +275,7 @@ def read_seven_scenes(
                 )
         depths = torch.from_numpy(np.stack(stack))
         # Stored depth smaller than colour is every ratio-th pixel of the full frame, read every depth_stride-th.
-        depth_camera = _depth_camera(folder, intrinsics).decimated(ratio * depth_stride)
+        depth_camera = depth_camera_of(folder, intrinsics).decimated(ratio * depth_stride)
     box = scene_box(T_world_cam, depths, depth_camera)
     far = float((box[1] - box[0]).norm())
     up = _up_axis(folder)

@@ -16,7 +16,7 @@ import cv2
 
 from locnerf.data.detect import dataset_format
 from locnerf.data.image_files import IMAGE_SUFFIXES
-from locnerf.data.seven_scenes import COLOUR_INTRINSICS, _colour_path, _depth_camera, _frame_stems, _sequence_folders
+from locnerf.data.seven_scenes import COLOUR_INTRINSICS, colour_path, depth_camera_of, frame_stems, sequence_folders
 from locnerf.errors import DatasetError
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sfm.video import VideoSelection, select_video_frames
@@ -145,8 +145,8 @@ def read_capture(path: str | Path, work_folder: Path, stride: int = 1, split: st
         frames = select_video_frames(path, work_folder / "frames", video or VideoSelection())
         return _enough(Capture("video", path, work_folder / "frames", [p.name for p in frames.paths], stamps=frames.stamps))
     if kind == "rgbd":
-        stems = [stem for sequence in _sequence_folders(path, split) for stem in _frame_stems(sequence)][::stride]
-        colours = [_colour_path(stem) for stem in stems]
+        stems = [stem for sequence in sequence_folders(path, split) for stem in frame_stems(sequence)][::stride]
+        colours = [colour_path(stem) for stem in stems]
         names = [str(p.relative_to(path)) for p in colours]
         depths = [stem.with_name(stem.name + ".depth.png") for stem in stems]
         missing = [str(p) for p in depths if not p.is_file()]
@@ -166,7 +166,7 @@ def read_capture(path: str | Path, work_folder: Path, stride: int = 1, split: st
                 names,
                 stamps=stamps,
                 depth_paths=depth_paths,
-                depth_camera=_depth_camera(path, full_size) if depth_paths else None,
+                depth_camera=depth_camera_of(path, full_size) if depth_paths else None,
             )
         )
     if kind != "images":
