@@ -322,14 +322,16 @@ def check_map_poses(radiance_map: object, poses: str) -> str:
 def read_on_map_camera(data: object, radiance_map: object, poses: str = "dslam", **read: object) -> PosedImages:
     """A data set's frames (:func:`locnerf.data.read_dataset` with ``read``'s arguments) posed by ``poses``,
     on the colour camera ``radiance_map`` was built for (:func:`on_map_camera`; with ``sfm`` the poses
-    are the colour camera's already and the map's calibration places the depth camera).
+    are the colour camera's already and the map's calibration places the depth camera), in the map's frame
+    (:meth:`PosedImages.in_frame`: a map aligned to the data set by ``locnerf map align`` has its own).
 
     Raises:
         DatasetError: ``poses`` unknown or not the map's (:func:`check_map_poses`), and the reader's errors.
     """
     check_map_poses(radiance_map, poses)
     T_depth_colour = map_colour_camera(radiance_map) if poses == "sfm" else None
-    return on_map_camera(read_dataset(data, poses=poses, T_depth_colour=T_depth_colour, **read), radiance_map)
+    frames = on_map_camera(read_dataset(data, poses=poses, T_depth_colour=T_depth_colour, **read), radiance_map)
+    return frames.in_frame(radiance_map.normalization)
 
 
 def sfm_training_frames(data: object, split: str, downscale: int | None, stride: int, calibrate: bool = True) -> tuple[PosedImages, dict]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -104,3 +105,46 @@ class PosedImages:
     def without_depth(self) -> PosedImages:
         """The same images without their depth images (RGB-only map building)."""
         return replace(self, depths=None, depth_intrinsics=None)
+
+    def in_frame(self, normalization: MapNormalization) -> PosedImages:
+        """The same images in the map frame of ``normalization`` (another map's frame over the same metric world,
+        e.g. an SfM map aligned to this data set's ground truth by ``locnerf map align``).
+
+        Poses go through the metric frame (``normalization.metric_to_map(self.normalization.map_to_metric(T))``);
+        depths, near, far and ``T_cam_depth``'s translation are rescaled to the new map units, and the scene box is
+        the box of its transformed corners. Returns ``self`` when both frames coincide.
+
+        Raises:
+            DatasetError: if either frame is NDC (forward-facing LLFF frames cannot be re-expressed).
+        """
+        ours = self.normalization
+        if torch.allclose(torch.tensor(ours.T_map_dataset), torch.tensor(normalization.T_map_dataset), atol=1e-9) and math.isclose(
+            ours.scale, normalization.scale
+        ):
+            return self
+        if ours.ndc or normalization.ndc:
+            raise DatasetError(f"{self.source}: NDC frames cannot be re-expressed in another map frame (expected a map without NDC rays)")
+        factor = normalization.scale / ours.scale
+        corners = torch.cartesian_prod(*self.scene_bounds.double().T)
+        moved = normalization.metric_to_map(ours.map_to_metric(_at(corners)))[:, :3, 3]
+        T_cam_depth = None
+        if self.T_cam_depth is not None:
+            T_cam_depth = self.T_cam_depth.double().clone()
+            T_cam_depth[:3, 3] *= factor
+        return replace(
+            self,
+            T_world_cam=normalization.metric_to_map(ours.map_to_metric(self.T_world_cam.double())),
+            near=self.near * factor,
+            far=self.far * factor,
+            normalization=normalization,
+            scene_bounds=torch.stack((moved.min(0).values, moved.max(0).values)),
+            depths=None if self.depths is None else self.depths * factor,
+            T_cam_depth=T_cam_depth,
+        )
+
+
+def _at(points: torch.Tensor) -> torch.Tensor:
+    """Poses (N, 4, 4) float64 with identity rotation at ``points`` (N, 3)."""
+    poses = torch.eye(4, dtype=torch.float64).repeat(len(points), 1, 1)
+    poses[:, :3, 3] = points.double()
+    return poses

@@ -9,11 +9,13 @@ import numpy as np
 import pytest
 import torch
 
+from locnerf.data.posed_images import PosedImages
 from locnerf.data.trajectory_files import read_trajectory, write_tum
 from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import make_pose, so3_exp
 from locnerf.geometry.similarity import Similarity, fit_similarity, fit_similarity_to_poses
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sfm.alignment import aligned_normalization, alignment_errors
 from locnerf.sfm.metric import ScaleEstimate, agreed_scale, fit_to_trajectory, rotation_to_z_up, scale_from_depth
 from locnerf.sfm.video import VideoSelection, select_video_frames, sharpness
@@ -106,3 +108,40 @@ def test_aligned_normalization_takes_true_poses_into_the_map_frame():
     normalization = aligned_normalization(MapNormalization(), fitted)
     np.testing.assert_allclose(normalization.metric_to_map(torch.from_numpy(truth)).numpy(), map_poses, atol=1e-9)
     np.testing.assert_allclose(normalization.map_to_metric(torch.from_numpy(map_poses)).numpy(), truth, atol=1e-9)
+
+
+def test_ground_truth_frames_are_read_into_an_aligned_maps_frame():
+    """The eval commands' frames (PosedImages in the data set's frame) re-expressed in an aligned SfM map's frame
+    (:meth:`PosedImages.in_frame`): poses by the inverse similarity, depths and bounds in the map's units."""
+    generator = np.random.default_rng(5)
+    map_to_truth = _random_similarity(generator)
+    map_poses = np.stack([make_pose(so3_exp(torch.from_numpy(generator.normal(size=3))), torch.from_numpy(generator.normal(size=3))).numpy() for _ in range(4)])
+    camera = PinholeIntrinsics(fx=20.0, fy=20.0, cx=7.5, cy=5.5, width=16, height=12)
+    depths = torch.from_numpy(generator.uniform(0.5, 3.0, size=(4, 6, 8)))
+    offset = make_pose(so3_exp(torch.tensor([0.0, 0.01, 0.0], dtype=torch.float64)), torch.tensor([0.03, 0.0, 0.0], dtype=torch.float64))
+    truth_frames = PosedImages(
+        images=torch.zeros(4, 12, 16, 3),
+        T_world_cam=torch.from_numpy(map_to_truth.poses(map_poses)),
+        intrinsics=camera,
+        near=0.1,
+        far=8.0,
+        normalization=MapNormalization(),
+        names=[f"frame-{i}" for i in range(4)],
+        scene_bounds=torch.tensor([[-1.0, -2.0, -3.0], [1.0, 2.0, 3.0]], dtype=torch.float64),
+        depths=depths,
+        depth_intrinsics=camera.scaled(0.5),
+        T_cam_depth=offset,
+    )
+    aligned = aligned_normalization(MapNormalization(), map_to_truth)
+    in_map = truth_frames.in_frame(aligned)
+    np.testing.assert_allclose(in_map.T_world_cam.numpy(), map_poses, atol=1e-9)
+    units = 1.0 / map_to_truth.scale
+    np.testing.assert_allclose(in_map.depths.numpy(), depths.numpy() * units, rtol=1e-12)
+    assert in_map.near == pytest.approx(0.1 * units) and in_map.far == pytest.approx(8.0 * units)
+    np.testing.assert_allclose(in_map.T_cam_depth[:3, 3].numpy(), offset[:3, 3].numpy() * units, rtol=1e-12)
+    corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-2.0, 2.0) for z in (-3.0, 3.0)])
+    moved = (corners - map_to_truth.translation) @ map_to_truth.rotation / map_to_truth.scale
+    np.testing.assert_allclose(in_map.scene_bounds.numpy(), np.stack((moved.min(0), moved.max(0))), atol=1e-9)
+    assert in_map.normalization == aligned and truth_frames.in_frame(MapNormalization()) is truth_frames
+    with pytest.raises(DatasetError, match="NDC"):
+        truth_frames.in_frame(aligned.model_copy(update={"ndc": True}))
