@@ -32,7 +32,7 @@ from locnerf.filter.depth_measurement import (
     warped_depth_log_likelihoods,
 )
 from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
-from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_around_keyframes
+from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_start
 from locnerf.filter.keyframes import KeyframeIndex
 from locnerf.filter.kld import KldConfig, kld_resample
 from locnerf.filter.lineage import NO_ANCESTOR, Lineage
@@ -174,8 +174,7 @@ class Localizer:
         self.dtype = dtype
         self.region = region
         self.keyframes = keyframes
-        self._warned_camera = False
-        self._warned_no_depth = False
+        self._warned_camera = self._warned_no_depth = False
         self.epoch = 0
         self.stage = AnnealingStage.COARSE
         self.particles: ParticleSet | None = None
@@ -186,7 +185,7 @@ class Localizer:
         self._last_warped: bool | None = None
         self._start_up: tuple[float, float, float] = (0.0, 1.0, 0.0)
         self._update_ess: float | None = None
-        self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0, "tempered": 0}
+        self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0, "tempered": 0, "recoveries": 0}
 
     # ----------------------------------------------------------------- initialisation
     def initialize(self, poses: torch.Tensor) -> None:
@@ -245,7 +244,7 @@ class Localizer:
             return 0
         particles = self._require_particles()
         share = self.config.keyframe_start.share
-        particles.poses = seed_around_keyframes(particles.poses, candidates, share, self.config.recovery, self.generator, self._start_up)
+        particles.poses = seed_start(particles.poses, candidates, self.config.keyframe_start, self.config.recovery, self.generator, self._start_up)
         seeded = round(share * particles.count)
         logger.info("keyframe start: %d of %d particles re-drawn around %d matching keyframes", seeded, particles.count, len(candidates.poses))
         return seeded
@@ -388,11 +387,12 @@ class Localizer:
             return self._record(MergeOutcome.DEGENERATE)
 
         if warped != self._last_warped:
-            self._recovery.reset()
+            self._recovery.forget_level()
             self._last_warped = warped
         combined = log_weights + self._temper(log_weights, per_particle)
         weighed = normalise_log_weights(combined).to(self.device, self.dtype)
         plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
+        self.counters["recoveries"] = self._recovery.fired  # injection streaks started: times the filter found itself lost
         injected = self._resample(particles, weighed, plan, find_candidates)
         self._update_ess = effective_sample_size(torch.exp(weighed).double())
         return self._record(MergeOutcome.MERGED, injected, self._update_ess)
@@ -441,7 +441,7 @@ class Localizer:
         parents = particles.ids[indices]
         injected = int(round(plan.fraction * target))
         if injected > 0:
-            estimate = estimate_from_particles(dataclasses.replace(particles, log_weights=log_weights), stage).pose
+            estimate = estimate_from_particles(dataclasses.replace(particles, log_weights=log_weights), stage)
             candidates = find_candidates() if find_candidates is not None else None
             fresh = injection_poses(plan, injected, self.config.recovery, estimate, self.region.bounds(), self.region.up, self.generator, candidates)
             replaced = torch.randperm(target, generator=self.generator)[:injected].to(self.device)

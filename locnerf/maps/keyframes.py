@@ -1,5 +1,6 @@
 """The keyframe index of a map: thumbnails rendered at its reference poses (or at random poses of
-the procedural world), for the filter's recovery draws around keyframes."""
+the procedural world, or on a lattice over the room: :mod:`locnerf.maps.view_lattice`), for the
+filter's keyframe start and recovery draws around keyframes."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from locnerf.field.protocol import RadianceMap
 from locnerf.filter.keyframes import KeyframeIndex, index_from_views, thumbnail_camera
 from locnerf.filter.localizer import LocalizerConfig
 from locnerf.geometry.validation import validate_poses
+from locnerf.maps.view_lattice import build_lattice_index
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import RenderRays, render_views
 from locnerf.sim.world import ProceduralWorld
@@ -39,9 +41,12 @@ def build_keyframe_index(render_rays: RenderRays, poses: torch.Tensor, intrinsic
 
 def recovery_keyframes(config: LocalizerConfig, radiance_map: RadianceMap, intrinsics: PinholeIntrinsics, seed: int) -> KeyframeIndex | None:
     """The map's keyframe index for images of ``intrinsics``, when ``config``'s recovery or keyframe
-    start draws around keyframes (:meth:`LocalizerConfig.uses_keyframes`); None otherwise."""
+    start draws around keyframes (:meth:`LocalizerConfig.uses_keyframes`); None otherwise. With
+    ``keyframe_start.lattice`` set, the views of the lattice (:func:`build_lattice_index`)."""
     if not config.uses_keyframes():
         return None
+    if config.keyframe_start.lattice is not None:
+        return build_lattice_index(radiance_map, intrinsics, config.keyframe_start.lattice)
     poses = keyframe_poses(radiance_map, torch.Generator().manual_seed(seed))
     started = time.perf_counter()
     index = build_keyframe_index(radiance_map.render_rays, poses.to(radiance_map.device), intrinsics)
