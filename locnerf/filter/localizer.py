@@ -431,7 +431,7 @@ class Localizer:
         spread = math.inf if plan.fraction > 0 else weighted_position_spread(particles.positions.double(), weights)
         stage = stage_for_spread(spread, self.config.annealing)
         resampler = RESAMPLERS[self.config.resampler]
-        if self.config.kld.enabled and plan.fraction == 0:
+        if self.config.kld.enabled and (plan.fraction == 0 or plan.around_estimate):  # refining: the count follows the closing cloud
             indices = kld_resample(weights, particles.poses, self.config.kld, self.config.particles, resampler, self.generator).to(self.device)
             target = int(indices.shape[0])
         else:  # a filter that injects is lost: KLD-sampling then keeps the full count

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from locnerf.filter.initialization import global_particles, rotation_about_axis, uniform_particles
+from locnerf.filter.estimate import ParticleEstimate
+from locnerf.filter.initialization import gaussian_particles, global_particles, rotation_about_axis, uniform_particles
 from locnerf.geometry.se3 import make_pose, se3_exp
 
 logger = logging.getLogger(__name__)
@@ -80,6 +81,12 @@ class RecoveryConfig(BaseModel):
     keyframe_position_sigma: float = Field(
         0.5, gt=0, description="Position standard deviation around a keyframe per axis, as a multiple of the keyframes' spacing."
     )
+    keyframe_position_sigma_map: float | None = Field(
+        None,
+        gt=0,
+        description="Position spread around a keyframe in map units instead of keyframe_position_sigma spacings (None: spacings). "
+        "For maps whose keyframes lie millimetres apart along one path (the kitchen's: 6 mm) while the robot may be decimetres from all of them.",
+    )
     keyframe_rotation_sigma_deg: float = Field(5.0, ge=0, description="Rotation standard deviation around a keyframe per axis, degrees.")
     keyframe_orbit_depth: float = Field(
         0.0,
@@ -90,6 +97,23 @@ class RecoveryConfig(BaseModel):
     keyframe_orbit_distance_sigma: float = Field(
         0.0, ge=0, description="Orbit draws: standard deviation of the change of distance to the circled point, map units."
     )
+    reference_views: bool = Field(
+        False,
+        description="With keyframe_start.lattice: the keyframe index holds the map's reference views (its training cameras) after the lattice's, "
+        "so that a start on the training path finds them and recovery finds a place anywhere in the room (locnerf.maps.keyframes.joined_index).",
+    )
+    relocalize_updates: int = Field(
+        0,
+        ge=0,
+        description="After an update that injects, this many updates refine around the posterior (refine_*) instead of testing the likelihood; "
+        "then the likelihood averages start afresh (0: test every update, as augmented MCL).",
+    )
+    refine_fraction: float = Field(0.3, ge=0, le=1, description="Share of the particles re-drawn around the posterior by each refining update.")
+    refine_scale: float = Field(
+        1.0, gt=0, description="Refining draws: N(estimate, refine_scale² Σ + floor²), Σ the cloud's weighted covariance (tangent space)."
+    )
+    refine_min_position: float = Field(0.005, ge=0, description="Floor of the refining draws' position standard deviation per axis, map units.")
+    refine_min_rotation_deg: float = Field(0.5, ge=0, description="Floor of the refining draws' rotation standard deviation per axis, degrees.")
 
     @model_validator(mode="after")
     def _consistent(self) -> RecoveryConfig:
@@ -105,14 +129,17 @@ class InjectionPlan:
     """How many fresh particles one update injects, and how far from the estimate the local ones go.
 
     Attributes:
-        fraction: share of the resampled particles to replace, in [0, max_fraction].
+        fraction: share of the resampled particles to replace, in [0, 1].
         local_radius: half side of the position cube around the estimate, map units.
         local_yaw: bound of the yaw offset from the estimate, radians.
+        around_estimate: a refining update: every fresh particle is drawn from the cloud's own Gaussian
+            (``refine_*`` of :class:`RecoveryConfig`), none around keyframes, locally or uniformly.
     """
 
     fraction: float
     local_radius: float
     local_yaw: float
+    around_estimate: bool = False
 
 
 def _log_ema(log_average: float | None, log_value: float, rate: float) -> float:
@@ -125,7 +152,8 @@ def _log_ema(log_average: float | None, log_value: float, rate: float) -> float:
 
 
 class RecoveryMonitor:
-    """The slow and fast log-likelihood averages of augmented MCL and the current injection streak."""
+    """The slow and fast log-likelihood averages of augmented MCL, the current injection streak and,
+    after a kidnapping is detected, the refining updates still to come (``relocalize_updates``)."""
 
     def __init__(self, config: RecoveryConfig) -> None:
         self.config = config
@@ -133,16 +161,33 @@ class RecoveryMonitor:
         self.log_fast: float | None = None
         self.streak = 0
         self.low = 0
+        self.refining = 0
+        self.fired = 0  # injection streaks started since construction (not forgotten by reset)
 
     def reset(self) -> None:
         """Forget the history (after a re-initialisation)."""
-        self.log_slow = self.log_fast = None
+        self.forget_level()
         self.streak = 0
+        self.refining = 0
+
+    def forget_level(self) -> None:
+        """Forget the likelihood averages, not a relocalization under way (the likelihood changed kind: rendered / re-projected)."""
+        self.log_slow = self.log_fast = None
         self.low = 0
 
     def observe(self, log_mean_likelihood: float) -> InjectionPlan:
-        """Feed one update's log mean likelihood; return what to inject after its resampling."""
+        """Feed one update's log mean likelihood; return what to inject after its resampling.
+
+        While refining after a detection, the likelihood is not tested (the cloud is converging on
+        the new place): each update re-draws ``refine_fraction`` around the posterior; after the last
+        one the averages start afresh."""
         config = self.config
+        if self.refining > 0:
+            self.refining -= 1
+            if self.refining == 0:
+                self.forget_level()
+            self.streak += 1
+            return InjectionPlan(fraction=config.refine_fraction, local_radius=config.local_radius, local_yaw=0.0, around_estimate=True)
         fraction = 0.0
         if math.isfinite(log_mean_likelihood):
             self.log_slow = _log_ema(self.log_slow, log_mean_likelihood, config.alpha_slow)
@@ -161,7 +206,9 @@ class RecoveryMonitor:
             local_radius=min(config.local_max_radius, config.local_radius * growth),
             local_yaw=math.radians(min(180.0, config.local_yaw_deg * growth)),
         )
+        self.fired += int(fraction > 0 and self.streak == 0)
         self.streak = self.streak + 1 if fraction > 0 else 0
+        self.refining = config.relocalize_updates if fraction > 0 else 0
         return plan
 
 
@@ -243,8 +290,9 @@ def keyframe_draws(
 ) -> torch.Tensor:
     """``count`` fresh poses around ``candidates`` with the spreads of ``config``: orbit draws
     (:func:`keyframe_orbit_particles`) when ``keyframe_orbit_depth`` > 0, else Gaussian ones
-    (:func:`keyframe_particles`); position spreads in keyframe spacings. Returns (count, 4, 4) float64."""
-    sigma = config.keyframe_position_sigma * candidates.spacing
+    (:func:`keyframe_particles`); position spreads in keyframe spacings, or in map units when
+    ``keyframe_position_sigma_map`` is set. Returns (count, 4, 4) float64."""
+    sigma = config.keyframe_position_sigma_map or config.keyframe_position_sigma * candidates.spacing
     rotation = math.radians(config.keyframe_rotation_sigma_deg)
     if config.keyframe_orbit_depth > 0:
         depth = config.keyframe_orbit_depth
@@ -256,21 +304,23 @@ def injection_poses(
     plan: InjectionPlan,
     count: int,
     config: RecoveryConfig,
-    estimate: torch.Tensor,
+    estimate: torch.Tensor | ParticleEstimate,
     bounds: torch.Tensor,
     up: tuple[float, float, float],
     generator: torch.Generator,
     candidates: KeyframeCandidates | None = None,
 ) -> torch.Tensor:
-    """Fresh particle poses: around the candidate keyframes, around the estimate, and uniform.
+    """Fresh particle poses: around the candidate keyframes, around the estimate, and uniform; or,
+    for a refining plan, from the cloud's own Gaussian (:func:`refining_draws`).
 
     ``round(count · keyframe_share)`` go around the candidates (none without candidates); of the
     rest, ``round(rest · local_share)`` around the estimate and the others uniformly.
 
     Args:
-        plan: radius and yaw bound of the local draws.
+        plan: radius and yaw bound of the local draws, or ``around_estimate``.
         config: the shares and spreads.
-        estimate: (4, 4) current estimate; its position centres the local cube, its rotation gives
+        estimate: (4, 4) current estimate, or the :class:`ParticleEstimate` (its pose and covariance:
+            a refining plan needs the covariance); its position centres the local cube, its rotation gives
             the local and uniform particles' roll and pitch (and the local particles' yaw before
             the offset).
         bounds: (2, 3) search region [min, max] for the uniform draws.
@@ -279,6 +329,12 @@ def injection_poses(
     Returns:
         (count, 4, 4) float64 on the CPU: keyframe draws, then local, then uniform.
     """
+    if plan.around_estimate:
+        if not isinstance(estimate, ParticleEstimate):
+            raise ValueError("a refining injection draws from the cloud's covariance: pass the ParticleEstimate, not its pose")
+        return refining_draws(estimate, count, config, generator)
+    if isinstance(estimate, ParticleEstimate):
+        estimate = estimate.pose
     by_keyframe = round(count * config.keyframe_share) if candidates is not None else 0
     local = round((count - by_keyframe) * config.local_share)
     estimate = estimate.double().cpu()
@@ -287,3 +343,19 @@ def injection_poses(
     if by_keyframe > 0:
         parts.insert(0, keyframe_draws(candidates, by_keyframe, config, up, generator))
     return torch.cat(parts)
+
+
+def refining_draws(estimate: ParticleEstimate, count: int, config: RecoveryConfig, generator: torch.Generator) -> torch.Tensor:
+    """``count`` poses ``estimate.pose · Exp(δ)``, δ ~ N(0, refine_scale² Σ + diag(floor²)), Σ the
+    cloud's covariance (6, 6, rotation first) and the floors ``refine_min_rotation_deg`` and
+    ``refine_min_position`` per axis: a Gaussian fitted to the posterior, as in a regularised particle
+    filter, so that after a re-seed the cloud closes in on the new place over a few updates (the draws
+    shrink with the posterior: coarse to fine) instead of waiting for the prediction noise.
+
+    Returns:
+        (count, 4, 4) float64 on the CPU.
+    """
+    covariance = estimate.covariance.double().cpu()
+    floor = torch.tensor([math.radians(config.refine_min_rotation_deg)] * 3 + [config.refine_min_position] * 3, dtype=torch.float64)
+    covariance = config.refine_scale**2 * 0.5 * (covariance + covariance.T) + torch.diag(floor**2)
+    return gaussian_particles(estimate.pose.double().cpu(), covariance, count, generator)

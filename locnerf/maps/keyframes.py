@@ -42,13 +42,30 @@ def build_keyframe_index(render_rays: RenderRays, poses: torch.Tensor, intrinsic
 def recovery_keyframes(config: LocalizerConfig, radiance_map: RadianceMap, intrinsics: PinholeIntrinsics, seed: int) -> KeyframeIndex | None:
     """The map's keyframe index for images of ``intrinsics``, when ``config``'s recovery or keyframe
     start draws around keyframes (:meth:`LocalizerConfig.uses_keyframes`); None otherwise. With
-    ``keyframe_start.lattice`` set, the views of the lattice (:func:`build_lattice_index`)."""
+    ``keyframe_start.lattice`` set, the views of the lattice (:func:`build_lattice_index`), followed by the
+    reference views when ``recovery.reference_views`` is set (:func:`joined_index`)."""
     if not config.uses_keyframes():
         return None
-    if config.keyframe_start.lattice is not None:
-        return build_lattice_index(radiance_map, intrinsics, config.keyframe_start.lattice)
+    lattice = build_lattice_index(radiance_map, intrinsics, config.keyframe_start.lattice) if config.keyframe_start.lattice is not None else None
+    if lattice is not None and not config.recovery.reference_views:
+        return lattice
     poses = keyframe_poses(radiance_map, torch.Generator().manual_seed(seed))
     started = time.perf_counter()
     index = build_keyframe_index(radiance_map.render_rays, poses.to(radiance_map.device), intrinsics)
     logger.info("keyframe index: %d keyframes, spacing %.3f map units, built in %.2f s", len(index), index.spacing, time.perf_counter() - started)
-    return index
+    return index if lattice is None else joined_index(lattice, index)
+
+
+def joined_index(first: KeyframeIndex, second: KeyframeIndex) -> KeyframeIndex:
+    """The views of ``first`` then ``second`` in one index, with ``first``'s spacing (``recovery.reference_views``:
+    a view lattice and the map's reference views).
+
+    Raises:
+        ValueError: the two differ in thumbnail shape or camera.
+    """
+    if first.shape != second.shape or first.camera != second.camera:
+        raise ValueError(
+            f"joining keyframe indexes of thumbnails {first.shape} and {second.shape}, cameras {first.camera} and {second.camera}: expected the same"
+        )
+    poses = torch.cat([first.poses, second.poses])
+    return KeyframeIndex(poses, torch.cat([first.descriptors, second.descriptors]), first.shape, first.camera, first.spacing)

@@ -540,6 +540,8 @@ class FilterLoop:
             "stale_results": merged["stale"],
             "degenerate_updates": merged["degenerate"],
             "updates_tempered": merged["tempered"],
+            "recoveries": merged["recoveries"],
+            "particles_injected": merged["injected"],
             "merge_failures": self.merge_failures,
             "images_replaced": self.images_replaced + self.images_replaced_upstream + self.held_images.replaced,
             "images_waited_for_odometry": self.held_images.released,
