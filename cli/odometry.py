@@ -8,7 +8,9 @@ the clock ``locnerf eval tracking --frame-rate`` replays it on, so the file feed
 as it is). The file holds ``T_odom_cam`` of the depth camera (locnerf's OpenGL camera axes, the first
 pose the identity) at every frame that did not fail; failed frames are gaps, absent from the file.
 The JSON report on stdout gives the counts, the time per frame and the drift against the data set's
-own poses (aligned at the first pose; :func:`locnerf.eval.trajectory_output.odometry_drift`).
+own poses (aligned at the first pose; :func:`locnerf.eval.trajectory_output.odometry_drift`) and the
+per-step error's statistics, the prediction noise that matches this odometry
+(:func:`locnerf.odometry.step_noise.step_noise`); ``--poses sfm`` scores against 7-Scenes' SfM poses.
 """
 
 from __future__ import annotations
@@ -27,7 +29,9 @@ from locnerf.errors import LocnerfInputError
 from locnerf.eval.trajectory_output import odometry_drift
 from locnerf.odometry.rgbd import RgbdOdometryConfig
 from locnerf.odometry.sequence import ODOMETRY_DOWNSCALE
+from locnerf.odometry.step_noise import step_noise
 from locnerf.odometry.tracks import rgbd_track
+from locnerf_cli.flags import add_poses_argument
 
 logger = logging.getLogger(__name__)
 
@@ -42,6 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--every", type=int, default=2, help="use every N-th frame (2: 15 Hz of a 30 Hz capture)")
     parser.add_argument("--downscale", type=int, default=ODOMETRY_DOWNSCALE, help="colour size divisor (2: 320x240 of 640x480)")
     parser.add_argument("--threads", type=int, default=1, help="OpenCV threads (1: the one core the ingest gives it)")
+    add_poses_argument(parser)
     parser.set_defaults(func=run)
 
 
@@ -49,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     if args.frame_rate <= 0 or args.every < 1 or args.threads < 1:
         raise LocnerfInputError(f"--frame-rate {args.frame_rate}, --every {args.every}, --threads {args.threads}: expected positive values")
     cv2.setNumThreads(args.threads)
-    frames = read_dataset(args.data, split=args.split, downscale=args.downscale)
+    frames = read_dataset(args.data, split=args.split, downscale=args.downscale, poses=args.poses)
     indices = list(range(0, len(frames), args.every))
     stamps = torch.tensor(indices, dtype=torch.float64) / args.frame_rate
     track = rgbd_track(frames, indices, stamps, RgbdOdometryConfig(kind=args.kind, fast=args.fast))
@@ -57,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
     truth = frames.normalization.map_to_metric(frames.depth_poses()[indices].double())
     drift = odometry_drift(stamps, track.poses, track.valid, truth)
     drift.pop("series")
-    report = {"out": str(args.out), "data": str(args.data), "split": args.split, "stamps": len(indices), **track.report, "drift": drift}
+    noise = step_noise(track.poses, track.valid, truth)
+    report = {"out": str(args.out), "data": str(args.data), "split": args.split, "poses": args.poses, "stamps": len(indices), **track.report}
+    report |= {"drift": drift, "step_noise": noise}
     print(json.dumps(report, indent=2))
     return 0

@@ -94,6 +94,8 @@ def test_the_ingest_replays_it_and_locnerf_odometry_tracks_it(tum_folder, tmp_pa
     truth = relative_pose(poses[:1], poses[[k for k in range(FRAMES) if k != 4]])
     assert float(translation_error(trajectory.poses, truth).max()) < 0.005 and float(rotation_error_deg(trajectory.poses, truth).max()) < 0.2
     assert report["drift"]["ape_translation_max"] < 0.005
+    noise = report["step_noise"]  # the per-step error between 8 tracked frames: 7 steps, millimetres and tenths of a degree
+    assert noise["steps"] == 7 and max(noise["translation_sigma"]) < 0.005 and max(noise["rotation_sigma"]) < math.radians(0.4)
 
 
 def test_a_malformed_list_is_refused_naming_file_and_line(tmp_path: Path) -> None:
