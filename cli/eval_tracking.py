@@ -16,6 +16,7 @@ from locnerf.data.colour_camera import check_map_poses, map_colour_camera
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import (
+    BACK_ON_TRACK,
     ConvergenceConfig,
     StartConfig,
     convergence_stamps,
@@ -29,6 +30,7 @@ from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import WORLD, open_map
+from locnerf.sim.kidnap import KidnapJump, kidnap_shift_for_jump
 from locnerf.sim.paths import CameraPath, WorldPath, read_sequence_path
 from locnerf.sim.scenario import ScenarioConfig, build_scenario, check_timeline
 from locnerf.sim.sensors import CameraConfig, VioConfig
@@ -74,11 +76,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--init", choices=("global", "gaussian"), default="global", help="start: the paper's global cube, or a Gaussian around the truth")
     parser.add_argument("--kidnap-at", type=float, default=None, help="seconds: the camera jumps half a loop ahead, unseen by the odometry")
+    parser.add_argument(
+        "--kidnap-jump",
+        type=float,
+        nargs=2,
+        metavar=("METRES", "DEGREES"),
+        default=None,
+        help="with --kidnap-at: jump to the pose of the path at least this far and this much turned, nearest to both (locnerf.sim.kidnap)"
+        " instead of half a loop ahead",
+    )
     parser.add_argument("--no-recovery", action="store_true", help="turn kidnapping recovery off in the chosen configuration")
     parser.add_argument("--no-depth", action="store_true", help=NO_DEPTH_HELP)
     parser.add_argument("--converged-translation", type=float, default=0.05, help="convergence: translation error threshold, map units")
     parser.add_argument("--converged-rotation", type=float, default=5.0, help="convergence: rotation error threshold, degrees")
     parser.add_argument("--converged-hold", type=float, default=2.0, help="convergence: seconds both errors must stay under the thresholds")
+    parser.add_argument(
+        "--back-on-track",
+        type=float,
+        nargs=3,
+        metavar=("UNITS", "DEGREES", "SECONDS"),
+        default=None,
+        help="after a kidnapping: back when both errors stay under these thresholds this long (back_on_track_s; default 0.03 map units, 1 deg, 1 s)",
+    )
     parser.add_argument("--preset", default="tracking", help="filter preset (tracking, llff, llff_global, jackal)")
     parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
@@ -137,6 +156,14 @@ def convergence_criterion(args: argparse.Namespace) -> ConvergenceConfig:
     return ConvergenceConfig(translation=args.converged_translation, rotation_deg=args.converged_rotation, hold=args.converged_hold)
 
 
+def back_on_track_criterion(args: argparse.Namespace) -> ConvergenceConfig:
+    """--back-on-track, else :data:`BACK_ON_TRACK`."""
+    if args.back_on_track is None:
+        return BACK_ON_TRACK
+    fields = ("translation", "rotation_deg", "hold")
+    return from_flags(ConvergenceConfig, dict(zip(fields, args.back_on_track)), dict.fromkeys(fields, "--back-on-track"))
+
+
 def vio_config(args: argparse.Namespace) -> VioConfig:
     """The odometry model of --odom-rate, --drift, --yaw-drift, --noise, --rotation-noise."""
     values = {
@@ -156,6 +183,20 @@ def vio_config(args: argparse.Namespace) -> VioConfig:
     return from_flags(VioConfig, values, flags)
 
 
+def with_kidnap_jump(args: argparse.Namespace, path: CameraPath, scenario_config: ScenarioConfig) -> tuple[ScenarioConfig, KidnapJump | None]:
+    """The scenario with ``--kidnap-jump``'s shift (also left in ``args.kidnap_shift`` for the live ingest), and the jump; unchanged without it."""
+    if args.kidnap_jump is None:
+        return scenario_config, None
+    jump = kidnap_shift_for_jump(path, args.kidnap_at, args.odom_rate, *args.kidnap_jump)
+    args.kidnap_shift = jump.shift
+    return scenario_config.model_copy(update={"kidnap_shift": jump.shift}), jump
+
+
+def kidnap_jump_report(jump: KidnapJump | None) -> dict[str, float]:
+    """The chosen jump for the report (empty without ``--kidnap-jump``)."""
+    return {} if jump is None else {"kidnap_shift_s": jump.shift, "kidnap_jump_m": jump.distance, "kidnap_jump_deg": jump.angle_deg}
+
+
 def run(args: argparse.Namespace) -> int:
     image_rate = args.image_rate if args.image_rate is not None else (5.0 if args.live else 3.0)
     if args.odom_rate <= 0 or image_rate <= 0:
@@ -167,24 +208,31 @@ def run(args: argparse.Namespace) -> int:
     bag = args.sequence != WORLD and is_bag(args.sequence)
     if bag and args.kidnap_at is not None:
         raise LocnerfInputError(f"--kidnap-at with the bag {args.sequence}: a bag's camera moved as recorded, it cannot be kidnapped")
+    if args.kidnap_jump is not None and args.kidnap_at is None:
+        raise LocnerfInputError(f"--kidnap-jump {args.kidnap_jump[0]} {args.kidnap_jump[1]} without --kidnap-at: expected the time of the kidnapping too")
+    args.kidnap_shift = None
     if args.live:
         if args.background != "white" or args.init != "global" or args.no_recovery or args.plots:
             raise LocnerfInputError("--live: --background white, --init global, no --no-recovery and no --plots (the services do not do the others)")
+        jump = None
         if bag:
             sensor_seconds = bag_extent(args.sequence)[0]
         else:
             path = camera_path(args, open_map(args.map, torch.device("cpu")))
+            scenario_config, jump = with_kidnap_jump(args, path, scenario_config)
             check_timeline(path, scenario_config)
             sensor_seconds = args.duration if args.duration is not None else path.duration
-        report = run_live(args, criterion, image_rate, vio_config(args).model_dump(), sensor_seconds)
+        report = run_live(args, criterion, image_rate, vio_config(args).model_dump(), sensor_seconds, back_on_track_criterion(args)) | kidnap_jump_report(jump)
         print(json.dumps(report) if args.json else json.dumps(report, indent=2))
         return 0
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
+    jump = None
     if bag:
         scenario = bag_scenario(args.sequence, radiance_map.normalization)
     else:
         path = camera_path(args, radiance_map)
+        scenario_config, jump = with_kidnap_jump(args, path, scenario_config)
         track = eval_tracking_odometry.offline_track(args, path, scenario_config, map_colour_camera(radiance_map))
         scenario = build_scenario(path, scenario_config, radiance_map.normalization, track=track)
     config = localizer_config(args)
@@ -195,7 +243,11 @@ def run(args: argparse.Namespace) -> int:
     record = run_tracking(
         scenario, radiance_map, localizer, StartConfig(mode=args.init), image_generator, show_progress=not args.quiet, updates_per_image=args.updates_per_image
     )
-    summary = summarize_tracking(record, criterion) | eval_tracking_odometry.scenario_odometry(args, scenario, None if bag else track)
+    summary = (
+        summarize_tracking(record, criterion, back_on_track_criterion(args))
+        | eval_tracking_odometry.scenario_odometry(args, scenario, None if bag else track)
+        | kidnap_jump_report(jump)
+    )
     if args.plots is not None:
         name = "world" if args.sequence == WORLD else Path(args.sequence).name
         figure = plot_tracking_errors(record, convergence_stamps(summary), criterion, args.plots / "tracking_error.png", f"tracking: {name}")

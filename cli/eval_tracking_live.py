@@ -23,14 +23,14 @@ import torch
 from locnerf.bags.reader import bag_extent, is_bag
 from locnerf.data.colour_camera import check_map_poses, map_colour_camera
 from locnerf.errors import LocnerfInputError
-from locnerf.eval.tracking import ConvergenceConfig
+from locnerf.eval.tracking import BACK_ON_TRACK, ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_record, live_summary
 from locnerf.eval.trajectory_output import odometry_drift
 from locnerf.field.protocol import MapNormalization
 from locnerf.maps.source import WORLD, open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
-from locnerf.messages.schemas import Odometry, PoseEstimate, PoseStamped, UpdateResult
+from locnerf.messages.schemas import FilterStatus, Odometry, PoseEstimate, PoseStamped, UpdateResult
 from locnerf_cli import eval_tracking_odometry
 from locnerf_cli.up import ServiceConfigs, start_services
 from locnerf_services.filter_loop.__main__ import FilterProcessConfig
@@ -58,6 +58,7 @@ def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str
         "duration": args.duration,
         "image_rate": image_rate,
         "kidnap_at": args.kidnap_at,
+        "kidnap_shift": getattr(args, "kidnap_shift", None),
         "vio": vio,
         "T_depth_colour": None if colour_camera is None else colour_camera.tolist(),
         "passes": args.passes,
@@ -100,6 +101,8 @@ def _observe(observed: LiveObservations, kind: str, payload: bytes, arrival: flo
         pose = decode(payload, PoseEstimate)
         observed.poses.append((pose.stamp, arrival, torch.tensor(pose.T_world_cam, dtype=torch.float64)))
         observed.particle_counts.append(pose.particle_count)
+    elif kind == "status":
+        observed.filter_counters = decode(payload, FilterStatus).counters
     else:
         observed.updates[decode(payload, UpdateResult).request_id] = arrival
 
@@ -118,6 +121,7 @@ def record_run(configs: ServiceConfigs, folder: Path, sensor_seconds: float) -> 
         "truth": keys.key(ROBOT_ID, keys.GROUND_TRUTH),
         "pose": keys.key(ROBOT_ID, keys.POSE),
         "result": keys.key(ROBOT_ID, keys.UPDATE_RESULT),
+        "status": keys.key(ROBOT_ID, keys.STATUS),
     }
     # Callbacks only stamp and enqueue; decoding happens after the run, off the measured CPU.
     for kind, topic in topics.items():
@@ -143,7 +147,14 @@ def record_run(configs: ServiceConfigs, folder: Path, sensor_seconds: float) -> 
     return observed
 
 
-def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate: float, vio: dict[str, float], sensor_seconds: float) -> dict[str, Any]:
+def run_live(
+    args: argparse.Namespace,
+    criterion: ConvergenceConfig,
+    image_rate: float,
+    vio: dict[str, float],
+    sensor_seconds: float,
+    back_on_track: ConvergenceConfig = BACK_ON_TRACK,
+) -> dict[str, Any]:
     """Run the live experiment; the report (see :func:`locnerf.eval.tracking_live.live_summary`),
     with the error series of the scored poses under ``series`` when ``--json`` asks for it, as offline.
 
@@ -159,7 +170,7 @@ def run_live(args: argparse.Namespace, criterion: ConvergenceConfig, image_rate:
     else:
         events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
     observed = record_run(service_configs(args, image_rate, vio, events, colour_camera), args.logs, sensor_seconds)
-    report = live_summary(observed, radiance_map.normalization, args.kidnap_at, criterion, series=args.json)
+    report = live_summary(observed, radiance_map.normalization, args.kidnap_at, criterion, series=args.json, back_on_track=back_on_track)
     report |= {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}
     return live_odometry_outputs(args, observed, report, radiance_map.normalization, criterion)
 

@@ -8,7 +8,9 @@ taken at that stamp, and the error of its estimate against the truth is recorded
 Convergence: the first stamp from which both errors stay under the thresholds (default 0.05 map
 units and 5°) for ``hold`` seconds (default 2 s). Statistics "after convergence" cover the
 stamps from convergence to the end of the phase (the kidnapping ends the first phase). Recovery
-after a kidnapping is convergence measured from the jump.
+after a kidnapping is convergence measured from the jump; "back on track" is the same with the
+tighter :data:`BACK_ON_TRACK` criterion (3 cm / 1° for 1 s in map units: issue 32's kidnapping target
+on metric maps), reported as ``back_on_track_s``, seconds from the jump (None: never back).
 """
 
 from __future__ import annotations
@@ -54,6 +56,10 @@ class ConvergenceConfig(BaseModel):
     translation: float = Field(0.05, gt=0, description="Translation error threshold, map units.")
     rotation_deg: float = Field(5.0, gt=0, description="Rotation error threshold, degrees.")
     hold: float = Field(2.0, ge=0, description="Both errors must stay under the thresholds this long, seconds.")
+
+
+BACK_ON_TRACK = ConvergenceConfig(translation=0.03, rotation_deg=1.0, hold=1.0)
+"""After a kidnapping: back within 0.03 map units and 1° and staying there for 1 s."""
 
 
 @dataclass(frozen=True)
@@ -220,8 +226,9 @@ def _phase(record: TrackingRecord, begin: int, end: int, criterion: ConvergenceC
     return phase
 
 
-def summarize_tracking(record: TrackingRecord, criterion: ConvergenceConfig) -> dict[str, Any]:
-    """The report: the start phase, the phase after a kidnapping (if any), and the whole run."""
+def summarize_tracking(record: TrackingRecord, criterion: ConvergenceConfig, back_on_track: ConvergenceConfig = BACK_ON_TRACK) -> dict[str, Any]:
+    """The report: the start phase, the phase after a kidnapping (if any, with ``back_on_track_s``
+    by the ``back_on_track`` criterion), and the whole run."""
     count = len(record.stamps)
     split = record.kidnap_tick if record.kidnap_tick is not None else count
     summary: dict[str, Any] = {
@@ -233,6 +240,11 @@ def summarize_tracking(record: TrackingRecord, criterion: ConvergenceConfig) -> 
     }
     if record.kidnap_tick is not None:
         summary["kidnap"] = _phase(record, split, count, criterion)
+        back = settle_tick(record, split, count, back_on_track)
+        summary["kidnap"] |= {
+            "back_on_track": back_on_track.model_dump(),
+            "back_on_track_s": None if back is None else float(record.stamps[back] - record.stamps[split]),
+        }
     return summary
 
 

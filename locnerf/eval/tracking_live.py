@@ -14,7 +14,9 @@ and measures the rates:
 - ``pose_hz``, ``update_hz``: published poses and completed updates per wall second, over the
   span of the poses;
 - ``pose_latency_*_ms``: arrival of a pose minus arrival of the odometry of the same stamp;
-- ``particles_median`` / ``_min`` / ``_max``: the filter's particle count over its poses.
+- ``particles_median`` / ``_min`` / ``_max``: the filter's particle count over its poses;
+- ``recoveries``, ``particles_injected``: how often kidnapping recovery fired and how many particles
+  it injected, from the filter's last status (1 Hz; the run waits 3 s after the last sensor message).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from typing import Any
 
 import torch
 
-from locnerf.eval.tracking import ConvergenceConfig, TrackingRecord, error_series, summarize_tracking
+from locnerf.eval.tracking import BACK_ON_TRACK, ConvergenceConfig, TrackingRecord, error_series, summarize_tracking
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import rotation_error_deg, translation_error
 
@@ -41,6 +43,7 @@ class LiveObservations:
         poses: (stamp, arrival, ``T_world_cam`` (4, 4) float64 metric) of every published pose.
         updates: arrival of the last shard of every update result, by request id.
         particle_counts: the filter's particle count with every published pose.
+        filter_counters: the counters of the filter's last status (``recoveries``: times recovery fired).
     """
 
     odometry: list[tuple[float, float]] = field(default_factory=list)
@@ -49,6 +52,7 @@ class LiveObservations:
     poses: list[tuple[float, float, torch.Tensor]] = field(default_factory=list)
     updates: dict[str, float] = field(default_factory=dict)
     particle_counts: list[int] = field(default_factory=list)
+    filter_counters: dict[str, int] = field(default_factory=dict)
 
 
 def _span_rate(stamps: list[float], arrivals: list[float]) -> float | None:
@@ -109,20 +113,28 @@ def live_rates(observed: LiveObservations) -> dict[str, Any]:
     if observed.particle_counts:
         counts = torch.tensor(observed.particle_counts, dtype=torch.float64)
         rates |= {"particles_median": float(counts.median()), "particles_min": int(counts.min()), "particles_max": int(counts.max())}
+    if "recoveries" in observed.filter_counters:
+        rates |= {"recoveries": observed.filter_counters["recoveries"], "particles_injected": observed.filter_counters.get("particles_injected", 0)}
     if latencies.numel():
         rates |= {f"pose_latency_{name}_ms": float(torch.quantile(latencies, q)) for name, q in (("p50", 0.5), ("p95", 0.95), ("max", 1.0))}
     return rates
 
 
 def live_summary(
-    observed: LiveObservations, normalization: MapNormalization, kidnap_at: float | None, criterion: ConvergenceConfig, series: bool = False
+    observed: LiveObservations,
+    normalization: MapNormalization,
+    kidnap_at: float | None,
+    criterion: ConvergenceConfig,
+    series: bool = False,
+    back_on_track: ConvergenceConfig = BACK_ON_TRACK,
 ) -> dict[str, Any]:
     """The offline report of the run, its rates, and the headline figures at the top level:
     ``translation_median`` / ``rotation_median_deg`` after convergence, ``converged_after_s``
-    (sensor seconds from the first scored pose), and the kidnap recovery when there was one (None where not reached);
+    (sensor seconds from the first scored pose), and the kidnap recovery when there was one (None where not reached;
+    ``kidnap_back_on_track_s`` by the ``back_on_track`` criterion);
     with ``series``, also the error series of the scored poses (``series``, as the offline JSON report)."""
     record = live_record(observed, normalization, kidnap_at)
-    summary = summarize_tracking(record, criterion)
+    summary = summarize_tracking(record, criterion, back_on_track)
     start = summary["start"]
     after = start.get("after_convergence", {})
     headline: dict[str, Any] = {
@@ -132,5 +144,9 @@ def live_summary(
     }
     if kidnap_at is not None:
         kidnap = summary.get("kidnap", {})
-        headline |= {"kidnap_recovery_updates": kidnap.get("updates_to_converge"), "kidnap_recovery_s": kidnap.get("seconds_to_converge")}
+        headline |= {
+            "kidnap_recovery_updates": kidnap.get("updates_to_converge"),
+            "kidnap_recovery_s": kidnap.get("seconds_to_converge"),
+            "kidnap_back_on_track_s": kidnap.get("back_on_track_s"),
+        }
     return headline | live_rates(observed) | summary | ({"series": error_series(record)} if series else {})

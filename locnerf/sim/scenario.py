@@ -5,8 +5,8 @@ images are taken at a subset of those stamps, so an image and the odometry messa
 describe the same instant. The path (:mod:`locnerf.sim.paths`) gives the true camera poses and
 the images; the odometry of the body is simulated by :func:`locnerf.sim.sensors.simulate_odometry`.
 
-A kidnapping at ``t*`` makes the true path jump about half a loop ahead (``τ(t) = t + shift``
-from then on, ``shift`` = the path's ``kidnap_shift``). The odometry does not see the jump: its
+A kidnapping at ``t*`` makes the true path jump ahead (``τ(t) = t + shift`` from then on,
+``shift`` = the configured ``kidnap_shift``, by default the path's: about half a loop). The odometry does not see the jump: its
 increment across ``t*`` is the motion the camera would have made without it, every other
 increment is the true one (then drift and noise are applied).
 
@@ -47,6 +47,11 @@ class ScenarioConfig(BaseModel):
     image_rate: float = Field(3.0, ge=0, description="Images per second (rounded onto the odometry grid or the frames); 0: odometry only.")
     vio: VioConfig = Field(default_factory=VioConfig, description="Odometry rate, drift and noise (metres, radians).")
     kidnap_at: float | None = Field(None, gt=0, description="Time of the kidnapping, seconds; None: no kidnapping.")
+    kidnap_shift: float | None = Field(
+        None,
+        gt=0,
+        description="Seconds along the path the kidnapping moves the camera ahead (locnerf.sim.kidnap picks one by distance); None: about half a loop.",
+    )
     seed: int = Field(0, description="Seed of the odometry noise (the images draw from seed + 1).")
 
 
@@ -111,7 +116,7 @@ def _timeline(path: CameraPath, config: ScenarioConfig) -> _Timeline:
     kidnap_tick = None
     if config.kidnap_at is not None:
         kidnap_tick = max(1, math.ceil(config.kidnap_at * odom_rate - 1e-9))
-        path_times[kidnap_tick:] += path.kidnap_shift
+        path_times[kidnap_tick:] += config.kidnap_shift if config.kidnap_shift is not None else path.kidnap_shift
     image_ticks: list[int] = []
     if config.image_rate > 0:
         image_times = path.image_times(config.image_rate, odom_rate, duration)

@@ -49,7 +49,8 @@ class ScenarioSourceConfig(BaseModel):
     duration: float | None = Field(None, gt=0, description="Seconds of sensor time; None: one loop of the path.")
     image_rate: float = Field(5.0, gt=0, description="Images per second (rounded onto the odometry grid or the frames).")
     vio: VioConfig = Field(default_factory=VioConfig, description="Odometry rate, drift and noise (the offline path's model).")
-    kidnap_at: float | None = Field(None, gt=0, description="Seconds: the camera jumps about half a loop ahead, unseen by the odometry.")
+    kidnap_at: float | None = Field(None, gt=0, description="Seconds: the camera jumps ahead along the path, unseen by the odometry.")
+    kidnap_shift: float | None = Field(None, gt=0, description="Seconds along the path the kidnapping jumps (as offline); None: about half a loop.")
     T_depth_colour: ColourCameraSetting
     passes: int = Field(1, ge=1, description="Data-set folder: replay the frames this many times, forward and backward in turn.")
     poses: PoseSource = Field("dslam", description="7-Scenes folder: the ground truth, dslam (its pose files) or sfm (pgt_sfm/); the map's.")
@@ -87,7 +88,9 @@ def scenario_events(config: ScenarioSourceConfig, seed: int) -> Iterator[SensorE
     Raises:
         LocnerfInputError: real odometry or several passes on the procedural world (it has no recorded frames).
     """
-    run = ScenarioConfig(duration=config.duration, image_rate=config.image_rate, vio=config.vio, kidnap_at=config.kidnap_at, seed=seed)
+    run = ScenarioConfig(
+        duration=config.duration, image_rate=config.image_rate, vio=config.vio, kidnap_at=config.kidnap_at, kidnap_shift=config.kidnap_shift, seed=seed
+    )
     path = camera_path(config)
     if not isinstance(path, SequencePath):
         if config.odometry.source != SYNTHETIC or config.passes != 1:
