@@ -11,6 +11,7 @@ bound tighter than the live run's own timeout: the suite runs on a loaded 2-core
 from __future__ import annotations
 
 import ast
+import functools
 import json
 import logging
 import math
@@ -20,7 +21,7 @@ from typing import Any
 import pytest
 import torch
 
-from locnerf.data import read_dataset
+from locnerf.data import PosedImages, read_dataset
 from locnerf.data.seven_scenes import depth_points
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.map_file import load_map, save_map
@@ -62,9 +63,16 @@ def training_depth_points(stride: str) -> torch.Tensor:
     return depth_points(frames.depths, frames.depth_poses(), frames.depth_intrinsics)
 
 
+@functools.cache
+def kitchen_split(split: str, stride: int) -> PosedImages:
+    """Every ``stride``-th frame of a split at the tiny maps' size, read once for the whole module (the
+    test split's 400 colour and depth images take a few seconds to decode; six cases ask for them)."""
+    return read_dataset(KITCHEN, split=split, downscale=int(DOWNSCALE), stride=stride)
+
+
 def black_image_psnr(split: str, stride: int) -> float:
     """Mean PSNR of an all-black render against the split's views (the floor a map must clear)."""
-    views = read_dataset(KITCHEN, split=split, downscale=int(DOWNSCALE), stride=stride)
+    views = kitchen_split(split, stride)
     return sum(psnr(torch.zeros_like(image), image) for image in views.images) / len(views)
 
 
@@ -147,7 +155,7 @@ def test_relocalization_on_test_frames_scores_every_trial(
     totals = report["totals"]
     assert totals["all"]["trials"] == totals["held_out_views"]["trials"] == 2 and totals["training_views"] is None
     assert 0.0 <= totals["all"]["success_rate"] <= 1.0
-    test_frames = set(read_dataset(KITCHEN, split="test", downscale=int(DOWNSCALE)).indices)
+    test_frames = set(kitchen_split("test", 1).indices)
     for trial in report["trials"]:
         assert trial["held_out"] and trial["frame"] in test_frames and trial["name"].startswith("seq-02/")
         assert math.isfinite(trial["translation_error"]) and 0.0 <= trial["translation_error"] < 3.0, trial["translation_error"]
