@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -100,11 +101,19 @@ def watch(bus) -> Observer:
     return observer
 
 
+@contextlib.contextmanager
+def open_hub(folder: Path) -> Iterator[tuple[Stack, Observer, object]]:
+    """(stack, observer, hub bus): a listening hub session and a process launcher, logs in ``folder``/logs;
+    the services still running are stopped on exit."""
+    with LocalHub(folder / "logs", stop_timeout=20.0, environment=os.environ | {"PYTHONPATH": str(REPO)}, cwd=REPO) as hub:
+        yield Stack(hub), watch(hub.bus), hub.bus
+
+
 @pytest.fixture
 def hub(tmp_path) -> Iterator[tuple[Stack, Observer, object]]:
-    """(stack, observer, hub bus): a listening hub session and a process launcher."""
-    with LocalHub(tmp_path / "logs", stop_timeout=20.0, environment=os.environ | {"PYTHONPATH": str(REPO)}, cwd=REPO) as hub:
-        yield Stack(hub), watch(hub.bus), hub.bus
+    """(stack, observer, hub bus) of :func:`open_hub`, for one test."""
+    with open_hub(tmp_path) as opened:
+        yield opened
 
 
 def wait_for(condition, timeout: float, what: str, stack: Stack) -> None:
@@ -115,4 +124,4 @@ def wait_for(condition, timeout: float, what: str, stack: Stack) -> None:
         raise AssertionError(f"{error}\n{stack.log_tail()}") from None
 
 
-__all__ = ["ROBOT", "Observer", "Stack", "wait_for", "watch"]
+__all__ = ["ROBOT", "Observer", "Stack", "open_hub", "wait_for", "watch"]

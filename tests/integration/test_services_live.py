@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections.abc import Iterator
 
+import pytest
 import torch
 
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
@@ -20,7 +22,7 @@ from locnerf.messages import keys
 from locnerf_services.filter_loop.__main__ import FilterProcessConfig
 from locnerf_services.filter_loop.service import FilterLoopConfig
 from locnerf_services.supervisor import write_config
-from tests.integration.conftest import REPO, ROBOT, wait_for
+from tests.integration.conftest import REPO, ROBOT, Observer, Stack, open_hub, wait_for
 from tests.integration.fault_report import covariance_trace, poses_lost, report
 
 TRACKED_TRANSLATION = 0.15
@@ -64,26 +66,6 @@ def start_services(stack, workers: tuple[str, ...], state_file) -> None:
 def filter_config(tmp_path):
     loop = FilterLoopConfig(state_file=str(tmp_path / "filter_state.json"), update_timeout=3.0)
     return write_config(tmp_path / "filter.toml", FilterProcessConfig(loop=loop))
-
-
-def test_global_localization_converges_tracks_and_two_workers_share_updates(hub, tmp_path):
-    stack, observer, _ = hub
-    start_services(stack, ("wa", "wb"), filter_config(tmp_path))
-    wait_for(lambda: len(observer.poses) > 0, 120, "the first pose", stack)
-    with observer.lock:
-        first = errors(observer, observer.poses[:1])
-    wait_for(lambda: tracking(observer), 90, "convergence from global initialisation", stack)
-    assert not first or first[0][0] > 0.3, "the filter should start lost"
-    shards: dict[str, set[str]] = {}
-    for result in list(observer.results):
-        shards.setdefault(result.request_id, set()).add(result.worker_id)
-    assert any(workers == {"wa", "wb"} for workers in shards.values()), "no update was shared by both workers"
-    count = len(observer.poses)
-    wait_for(lambda: len(observer.poses) >= count + 75, 30, "five more seconds of poses", stack)
-    with observer.lock:
-        window = errors(observer, observer.poses[-75:])
-    worst = (max((t for t, _ in window), default=None), max((r for _, r in window), default=None))
-    assert kept_tracking(window, 75), f"tracking was lost after convergence: {len(window)} scored poses, worst (m, deg) {worst}"
 
 
 def test_faults_garbage_worker_kill_and_filter_restart(hub, tmp_path):
@@ -140,9 +122,39 @@ def test_faults_garbage_worker_kill_and_filter_restart(hub, tmp_path):
     )
 
 
-def test_send_and_echo_commands(hub, tmp_path):
-    stack, observer, _ = hub
-    start_services(stack, ("wa",), filter_config(tmp_path))
+@pytest.fixture(scope="module")
+def tracking_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Stack, Observer, object]]:
+    """(stack, observer, hub bus) with filter, workers wa and wb and the ingest running from a global start:
+    one stack for the module's tests that neither kill nor restart a service (its start-up costs several
+    seconds of process starts and the wait for the first pose). The faults test has its own, and runs
+    first, so that the two stacks never share the CPU."""
+    folder = tmp_path_factory.mktemp("tracking_stack")
+    with open_hub(folder) as (stack, observer, bus):
+        start_services(stack, ("wa", "wb"), filter_config(folder))
+        yield stack, observer, bus
+
+
+def test_global_localization_converges_tracks_and_two_workers_share_updates(tracking_stack):
+    stack, observer, _ = tracking_stack
+    wait_for(lambda: len(observer.poses) > 0, 120, "the first pose", stack)
+    with observer.lock:
+        first = errors(observer, observer.poses[:1])
+    wait_for(lambda: tracking(observer), 90, "convergence from global initialisation", stack)
+    assert not first or first[0][0] > 0.3, "the filter should start lost"
+    shards: dict[str, set[str]] = {}
+    for result in list(observer.results):
+        shards.setdefault(result.request_id, set()).add(result.worker_id)
+    assert any(workers == {"wa", "wb"} for workers in shards.values()), "no update was shared by both workers"
+    count = len(observer.poses)
+    wait_for(lambda: len(observer.poses) >= count + 75, 30, "five more seconds of poses", stack)
+    with observer.lock:
+        window = errors(observer, observer.poses[-75:])
+    worst = (max((t for t, _ in window), default=None), max((r for _, r in window), default=None))
+    assert kept_tracking(window, 75), f"tracking was lost after convergence: {len(window)} scored poses, worst (m, deg) {worst}"
+
+
+def test_send_and_echo_commands(tracking_stack):
+    stack, observer, _ = tracking_stack
     wait_for(lambda: len(errors(observer, observer.poses[-1:])) == 1, 120, "a pose with ground truth", stack)
     cli = [sys.executable, "-m", "locnerf_cli.main"]
     connect = ["--robot-id", ROBOT, "--connect", stack.endpoint]
