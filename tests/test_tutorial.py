@@ -2,7 +2,7 @@
 
 The first block's ``NAME=value`` lines are the tutorial's settings; the test gives each of them a
 small value (a sample of lego frames at 64 × 64 written from ../shared/data, a map of a few steps on
-a coarse grid, live runs of a few seconds) and keeps the block's other lines. A failing command fails
+a coarse grid, live runs of 2 s after the first pose) and keeps the block's other lines. A failing command fails
 the test with the block it belongs to and the end of its output. Then every file the page promises
 is checked, with readers other than the commands that wrote it: the map file's header, the PNG, the
 tracking JSON and TUM trajectories, the recording through rerun's own reader.
@@ -84,7 +84,7 @@ def test_every_command_of_the_tutorial_runs_on_a_tiny_sample(tmp_path):
     text = TUTORIAL.read_text()
     blocks = bash_blocks(text)
     out = tmp_path / "out"
-    values = {"DATA": str(write_sample(tmp_path / "lego")), "OUT": str(out), "STEPS": "20", "VOXELS": "32768", "DOWNSCALE": "1", "LIVE_SECONDS": "4"}
+    values = {"DATA": str(write_sample(tmp_path / "lego")), "OUT": str(out), "STEPS": "20", "VOXELS": "32768", "DOWNSCALE": "1", "LIVE_SECONDS": "2"}
     _, first_rest = settings_of(blocks[0])
     script = ["set -euo pipefail", *(f"{name}={shlex.quote(value)}" for name, value in values.items())]
     for index, block in enumerate([("\n".join(first_rest)), *blocks[1:]]):
