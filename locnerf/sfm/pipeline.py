@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from locnerf.data.map_lens import CAMERA_KEY, lens_record
 from locnerf.data.trajectory_files import read_trajectory
 from locnerf.data.transforms_json import read_nerfstudio
 from locnerf.errors import DatasetError, LocnerfInputError
@@ -40,7 +41,7 @@ from locnerf.sfm.metric import (
     scale_from_depth,
     scale_from_known_distance,
 )
-from locnerf.sfm.posed import depth_observations, posed_images_from_reconstruction, registered_poses
+from locnerf.sfm.posed import colmap_camera, depth_observations, posed_images_from_reconstruction, registered_poses
 from locnerf.sfm.reconstruct import SfmConfig, run_sfm
 from locnerf.sfm.video import VideoSelection
 
@@ -215,4 +216,5 @@ def posed_capture(
     scale_down = downscale or (4 if capture.depth_paths is not None else 1)
     images = posed_images_from_reconstruction(reconstruction, capture, to_map, MAP_UP, scale_down, use_depth=record["metric"])
     sfm_record[FRAMES_KEY] = images.names
+    sfm_record[CAMERA_KEY] = lens_record(*colmap_camera(next(iter(reconstruction.cameras.values()))))
     return images, {"sfm": sfm_record, METRIC_FRAME_KEY: record}

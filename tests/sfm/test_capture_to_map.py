@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+from locnerf.data.map_lens import map_lens
 from locnerf.errors import ConfigError, DatasetError, LocnerfInputError
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.map_file import load_map, save_map
@@ -64,6 +65,9 @@ def test_rgbd_capture_to_a_metric_map_and_its_cache(capture, tmp_path):
     path = save_map(radiance_map, tmp_path / "world_sfm.locmap")
     loaded = load_map(path, "cpu")
     assert loaded.metadata[METRIC_FRAME_KEY]["metric"] and metric_frame_problem(loaded.metadata) is None
+    lens, distortion = map_lens(loaded)  # the SfM camera, which query images are resampled through (locnerf.data.map_lens)
+    assert (lens.width, lens.height) == (240, 180) and distortion.shape == (4,)
+    assert loaded.default_intrinsics.fx == pytest.approx(lens.fx / 4)
 
     again, metadata_again = posed_capture(folder, cache)
     assert metadata_again["sfm"]["cached"] and torch.allclose(again.T_world_cam, images.T_world_cam)
