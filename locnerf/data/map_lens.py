@@ -66,5 +66,6 @@ def on_map_lens(frames: PosedImages, radiance_map: object) -> PosedImages:
         raise DatasetError(f"{frames.source}: images of {width}x{height} do not have the map's camera's aspect ({intrinsics.width}x{intrinsics.height})")
     raw = intrinsics.scaled(width / intrinsics.width).matrix().numpy()
     target = radiance_map.default_intrinsics.scaled(width / radiance_map.default_intrinsics.width)
-    images = [cv2.undistort(image, raw, distortion, None, target.matrix().numpy()) for image in frames.images.numpy()]
+    map_x, map_y = cv2.initUndistortRectifyMap(raw, distortion, None, target.matrix().numpy(), (width, height), cv2.CV_32FC1)
+    images = [cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR) for image in frames.images.numpy()]  # the maps once, not per image
     return replace(frames, images=torch.from_numpy(np.stack(images)), intrinsics=target)
