@@ -32,6 +32,7 @@ from locnerf.filter.depth_measurement import (
     warped_depth_log_likelihoods,
 )
 from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
+from locnerf.filter.final_search import FinalSearchConfig
 from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_start
 from locnerf.filter.keyframes import KeyframeIndex
 from locnerf.filter.kld import KldConfig, kld_resample
@@ -82,6 +83,7 @@ class LocalizerConfig(BaseModel):
     keyframe_start: KeyframeStartConfig = Field(
         default_factory=KeyframeStartConfig, description="Re-drawing part of a uniform global start around the keyframes that match the first image."
     )
+    final_search: FinalSearchConfig | None = Field(None, description="Single-image trials: a last local search of the estimate on fixed pixels (None: off).")
     lineage_depth: int = Field(64, ge=1, description="Resampling generations kept for merging delayed updates.")
     mlp_coarse_samples: int = Field(64, ge=1, description="Coarse samples per ray for the nerf-pytorch MLP backend.")
     mlp_fine_samples: int = Field(64, ge=0, description="Fine (importance) samples per ray for the nerf-pytorch MLP backend.")
@@ -182,7 +184,6 @@ class Localizer:
         self._recovery = RecoveryMonitor(config.recovery)
         self._next_id = 0
         self._keyframe_start_pending = False
-        self._last_warped: bool | None = None
         self._start_up: tuple[float, float, float] = (0.0, 1.0, 0.0)
         self._update_ess: float | None = None
         self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0, "tempered": 0, "recoveries": 0}
@@ -386,12 +387,9 @@ class Localizer:
             logger.warning("degenerate update (no current particle has a finite likelihood): particles and weights kept unchanged")
             return self._record(MergeOutcome.DEGENERATE)
 
-        if warped != self._last_warped:
-            self._recovery.forget_level()
-            self._last_warped = warped
         combined = log_weights + self._temper(log_weights, per_particle)
         weighed = normalise_log_weights(combined).to(self.device, self.dtype)
-        plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle))
+        plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle), kind="warped" if warped else "rendered")
         self.counters["recoveries"] = self._recovery.fired  # injection streaks started: times the filter found itself lost
         injected = self._resample(particles, weighed, plan, find_candidates)
         self._update_ess = effective_sample_size(torch.exp(weighed).double())

@@ -108,6 +108,14 @@ class RecoveryConfig(BaseModel):
         description="After an update that injects, this many updates refine around the posterior (refine_*) instead of testing the likelihood; "
         "then the likelihood averages start afresh (0: test every update, as augmented MCL).",
     )
+    verify_updates: int = Field(
+        0,
+        ge=0,
+        description="After the refining updates, this many updates of one likelihood kind settle the new place's level without the drop test; "
+        "then their average (log of the mean likelihood) is compared with the slow average tracked before the detection (same kind): "
+        "more than verify_tolerance under it is a wrong place, and the filter relocalizes again (0: no check, the test resumes at once).",
+    )
+    verify_tolerance: float = Field(6.0, ge=0, description="Nats the settled level may lie under the level tracked before the detection.")
     refine_fraction: float = Field(0.3, ge=0, le=1, description="Share of the particles re-drawn around the posterior by each refining update.")
     refine_scale: float = Field(
         1.0, gt=0, description="Refining draws: N(estimate, refine_scale² Σ + floor²), Σ the cloud's weighted covariance (tangent space)."
@@ -153,7 +161,12 @@ def _log_ema(log_average: float | None, log_value: float, rate: float) -> float:
 
 class RecoveryMonitor:
     """The slow and fast log-likelihood averages of augmented MCL, the current injection streak and,
-    after a kidnapping is detected, the refining updates still to come (``relocalize_updates``)."""
+    after a kidnapping is detected, the refining updates still to come (``relocalize_updates``) and
+    the verification of the new place (``verify_updates``).
+
+    Likelihoods of different kinds (rendered, re-projected: they measure different pixels) are not
+    compared: a change of kind starts the averages afresh. The slow average last tracked before a
+    detection is kept per kind, as the level a right place should reach again."""
 
     def __init__(self, config: RecoveryConfig) -> None:
         self.config = config
@@ -163,43 +176,47 @@ class RecoveryMonitor:
         self.low = 0
         self.refining = 0
         self.fired = 0  # injection streaks started since construction (not forgotten by reset)
+        self.kind: object = None
+        self.tracked: dict[object, float] = {}  # per likelihood kind: the slow average before the low updates
+        self.verifying = False
+        self.settling: list[float] = []  # the verification's log-likelihoods so far (one kind)
 
     def reset(self) -> None:
         """Forget the history (after a re-initialisation)."""
         self.forget_level()
         self.streak = 0
         self.refining = 0
+        self.tracked = {}
+        self.verifying = False
 
     def forget_level(self) -> None:
         """Forget the likelihood averages, not a relocalization under way (the likelihood changed kind: rendered / re-projected)."""
         self.log_slow = self.log_fast = None
         self.low = 0
+        self.settling = []
 
-    def observe(self, log_mean_likelihood: float) -> InjectionPlan:
-        """Feed one update's log mean likelihood; return what to inject after its resampling.
+    def observe(self, log_mean_likelihood: float, kind: object = None) -> InjectionPlan:
+        """Feed one update's log mean likelihood of ``kind`` (any hashable label; a change forgets the
+        averages); return what to inject after its resampling.
 
         While refining after a detection, the likelihood is not tested (the cloud is converging on
         the new place): each update re-draws ``refine_fraction`` around the posterior; after the last
-        one the averages start afresh."""
+        one the averages start afresh, first verified (:meth:`_verify`) when ``verify_updates`` > 0."""
         config = self.config
+        if kind != self.kind:
+            self.forget_level()
+            self.kind = kind
         if self.refining > 0:
             self.refining -= 1
             if self.refining == 0:
                 self.forget_level()
+                self.verifying = config.verify_updates > 0
             self.streak += 1
             return InjectionPlan(fraction=config.refine_fraction, local_radius=config.local_radius, local_yaw=0.0, around_estimate=True)
-        fraction = 0.0
-        if math.isfinite(log_mean_likelihood):
-            self.log_slow = _log_ema(self.log_slow, log_mean_likelihood, config.alpha_slow)
-            self.log_fast = _log_ema(self.log_fast, log_mean_likelihood, config.alpha_fast)
-            if config.enabled:
-                ratio = math.exp(min(0.0, self.log_fast - self.log_slow + config.tolerance))
-                fraction = min(config.max_fraction, max(0.0, 1.0 - ratio))
-        self.low = self.low + 1 if fraction > 0 else 0
-        if self.low < config.confirm_updates:
-            fraction = 0.0
-        if self.log_fast is not None and self.log_slow is not None:
-            logger.debug("recovery: log-likelihood %.2f, fast %.2f, slow %.2f, fraction %.2f", log_mean_likelihood, self.log_fast, self.log_slow, fraction)
+        if self.verifying:
+            fraction = self._verify(log_mean_likelihood)
+        else:
+            fraction = self._test(log_mean_likelihood)
         growth = config.local_growth**self.streak
         plan = InjectionPlan(
             fraction=fraction,
@@ -210,6 +227,53 @@ class RecoveryMonitor:
         self.streak = self.streak + 1 if fraction > 0 else 0
         self.refining = config.relocalize_updates if fraction > 0 else 0
         return plan
+
+    def _test(self, log_mean_likelihood: float) -> float:
+        """The fraction to inject by the drop of the fast average under the slow one (augmented MCL,
+        with the tolerance and the confirming updates); remembers the slow level of a normal update."""
+        config = self.config
+        fraction = 0.0
+        if math.isfinite(log_mean_likelihood):
+            self.log_slow = _log_ema(self.log_slow, log_mean_likelihood, config.alpha_slow)
+            self.log_fast = _log_ema(self.log_fast, log_mean_likelihood, config.alpha_fast)
+            if config.enabled:
+                ratio = math.exp(min(0.0, self.log_fast - self.log_slow + config.tolerance))
+                fraction = min(config.max_fraction, max(0.0, 1.0 - ratio))
+        self.low = self.low + 1 if fraction > 0 else 0
+        if self.low == 0 and self.log_slow is not None:
+            self.tracked[self.kind] = self.log_slow
+        if self.low < config.confirm_updates:
+            fraction = 0.0
+        if self.log_fast is not None and self.log_slow is not None:
+            logger.debug("recovery: log-likelihood %.2f, fast %.2f, slow %.2f, fraction %.2f", log_mean_likelihood, self.log_fast, self.log_slow, fraction)
+        return fraction
+
+    def _verify(self, log_mean_likelihood: float) -> float:
+        """Collect the new place's likelihoods; after ``verify_updates`` of them compare their level
+        (log of the mean likelihood) with the one tracked before the detection: more than
+        ``verify_tolerance`` under it re-fires (``max_fraction``), else the averages start from it."""
+        config = self.config
+        if math.isfinite(log_mean_likelihood):
+            self.settling.append(log_mean_likelihood)
+        if len(self.settling) < config.verify_updates:
+            return 0.0
+        values = torch.tensor(self.settling, dtype=torch.float64)
+        level = float(torch.logsumexp(values, 0)) - math.log(len(self.settling))
+        before = self.tracked.get(self.kind)
+        self.verifying = False
+        self.settling = []
+        wrong = before is not None and level < before - config.verify_tolerance
+        logger.info(
+            "recovery: the new place's level %.2f, %s before the detection: %s",
+            level,
+            "unknown" if before is None else f"{before:.2f}",
+            "a wrong place, relocalizing again" if wrong else "kept",
+        )
+        if wrong:
+            self.streak = 0  # a relocalization of its own (counted in ``fired``)
+            return config.max_fraction
+        self.log_slow, self.log_fast = level, float(values[-1])
+        return 0.0
 
 
 @dataclass(frozen=True)

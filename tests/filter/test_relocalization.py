@@ -17,9 +17,10 @@ from locnerf.maps.keyframes import joined_index
 from locnerf.render.camera import PinholeIntrinsics
 
 
-def detected_monitor(relocalize_updates: int) -> RecoveryMonitor:
+def detected_monitor(relocalize_updates: int, verify_updates: int = 0) -> RecoveryMonitor:
     """A monitor that has seen ten normal updates (log-likelihood 20) and then a 14-nat drop (detected)."""
-    monitor = RecoveryMonitor(RecoveryConfig(enabled=True, alpha_fast=1.0, tolerance=6.0, max_fraction=0.9, relocalize_updates=relocalize_updates))
+    config = RecoveryConfig(enabled=True, alpha_fast=1.0, tolerance=6.0, max_fraction=0.9, relocalize_updates=relocalize_updates, verify_updates=verify_updates)
+    monitor = RecoveryMonitor(config)
     for _ in range(10):
         assert monitor.observe(20.0).fraction == 0.0
     plan = monitor.observe(6.0)
@@ -51,6 +52,49 @@ def test_a_change_of_likelihood_kind_keeps_the_refining_updates():
     assert monitor.observe(0.0).around_estimate
     monitor.reset()  # a re-initialisation ends it
     assert not monitor.observe(0.0).around_estimate
+
+
+def test_a_new_place_under_the_tracked_level_is_relocalized_again():
+    monitor = detected_monitor(relocalize_updates=2, verify_updates=3)
+    assert all(monitor.observe(30.0).around_estimate for _ in range(2))
+    assert [monitor.observe(value).fraction for value in (-40.0, 2.0)] == [0.0, 0.0]  # settling: not tested
+    # level log(mean(e^-40, e^2, e^2)) = 2 - log(1.5) = 1.59, 18.4 nats under the tracked 20 (> 6): a wrong place
+    assert monitor.observe(2.0).fraction == pytest.approx(0.9)
+    assert monitor.fired == 2
+    assert monitor.observe(2.0).around_estimate  # refining again around the second relocalization
+
+
+def test_a_new_place_at_the_tracked_level_is_kept_and_seeds_the_averages():
+    monitor = detected_monitor(relocalize_updates=1, verify_updates=3)
+    assert monitor.observe(-40.0).around_estimate
+    assert [monitor.observe(value).fraction for value in (16.0, 15.0, 15.5)] == [0.0, 0.0, 0.0]  # 4-5 nats under 20: kept
+    assert monitor.log_slow == pytest.approx(math.log((math.exp(16.0) + math.exp(15.0) + math.exp(15.5)) / 3))
+    assert monitor.observe(14.0).fraction == 0.0  # the new level's own tolerance: 2.1 nats under it
+    assert monitor.observe(5.0).fraction == pytest.approx(0.9)  # 10.5 nats under it: tested again, a second detection
+    assert monitor.fired == 2
+
+
+def test_the_verification_compares_levels_of_one_likelihood_kind():
+    config = RecoveryConfig(enabled=True, alpha_fast=1.0, tolerance=6.0, max_fraction=0.9, relocalize_updates=1, verify_updates=2)
+    levels = {"rendered": -10.0, "warped": 20.0}
+    for kind, expected in (("rendered", 0.0), ("warped", 0.9)):
+        monitor = RecoveryMonitor(config)
+        for name in ("rendered", "warped"):
+            for _ in range(5):
+                assert monitor.observe(levels[name], kind=name).fraction == 0.0
+        assert monitor.observe(5.0, kind="warped").fraction == pytest.approx(0.9)  # 15 nats under the warped level
+        assert monitor.observe(0.0, kind="warped").around_estimate
+        monitor.observe(-12.0, kind=kind)
+        assert monitor.observe(-12.0, kind=kind).fraction == pytest.approx(expected)  # 2 under the rendered level, 32 under the warped
+
+
+def test_a_change_of_kind_restarts_the_verification():
+    monitor = detected_monitor(relocalize_updates=1, verify_updates=2)
+    monitor.observe(0.0)
+    assert monitor.observe(-30.0).fraction == 0.0
+    assert monitor.observe(20.0, kind="warped").fraction == 0.0  # a new kind: the window starts again, nothing tracked for it
+    assert monitor.observe(-30.0, kind="warped").fraction == 0.0  # no level of this kind before the detection: kept
+    assert monitor.fired == 1
 
 
 def estimate_with(covariance: torch.Tensor) -> ParticleEstimate:
