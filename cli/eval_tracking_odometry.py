@@ -1,10 +1,10 @@
 """``locnerf eval tracking``'s real odometry and trajectory files: ``--odometry``, ``--passes``, ``--out``.
 
 ``--odometry synthetic`` (the default) keeps the simulator's odometry; ``rgbd`` computes OpenCV
-RGB-D odometry from the sequence's own frames as they are replayed (``--live``: in the ingest);
+RGB-D odometry from the sequence's own frames as they are replayed (``--live``: online, in the ingest, as it releases them);
 a file path feeds a recorded TUM or EuRoC trajectory (``--odometry-format``), matched to the
 images by stamp and carried to the camera with ``--T-body-cam``. Every report names its
-odometry (``odometry``: ``synthetic``, ``rgbd-live`` or ``file:<name>``), and with real odometry
+odometry (``odometry``: ``synthetic``, ``rgbd``, ``rgbd-online`` or ``file:<name>``), and with real odometry
 its drift against the ground truth (``odometry_drift``, :func:`locnerf.eval.trajectory_output.odometry_drift`).
 ``--out FOLDER`` writes the JSON report with ``reference.txt``, ``estimate.txt`` and ``odometry.txt``
 (TUM) beside it.
@@ -47,7 +47,7 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
         "--odometry",
         default=SYNTHETIC,
         help="sequence folder: 'synthetic' (from the ground truth with --drift/--noise), 'rgbd' (OpenCV RGB-D odometry of the "
-        "sequence's frames; --live: computed in the ingest) or a TUM / EuRoC trajectory FILE matched to the images by stamp",
+        "sequence's frames; --live: computed online by the ingest as it releases them) or a TUM / EuRoC trajectory FILE matched to the images by stamp",
     )
     parser.add_argument("--odometry-format", default="auto", choices=("auto", "tum", "euroc"), help="--odometry FILE: its format (auto: by its lines)")
     parser.add_argument(
@@ -97,11 +97,34 @@ def offline_track(args: argparse.Namespace, path: CameraPath, scenario_config: S
     return sequence_track(config, path, run_stamps(path, scenario_config), args.sequence, args.split, colour_camera, args.passes)
 
 
-def odometry_label(args: argparse.Namespace) -> str:
-    """What the run's odometry is: ``synthetic``, ``rgbd-live`` or ``file:<name>`` (a trajectory file, or the bag replayed)."""
+def odometry_label(args: argparse.Namespace, live: bool = False) -> str:
+    """What the run's odometry is: ``synthetic``, ``rgbd`` (offline), ``rgbd-online`` (``live``: computed by
+    the ingest as it releases the frames) or ``file:<name>`` (a trajectory file, or the bag replayed)."""
     if args.sequence != "world" and is_bag(args.sequence):
         return f"file:{Path(args.sequence).name}"
-    return SYNTHETIC if args.sequence == "world" else odometry_source(args).label
+    return SYNTHETIC if args.sequence == "world" else odometry_source(args).label(live)
+
+
+def online_odometry_report(ingest: dict[str, int], filter_counters: dict[str, int]) -> dict[str, Any]:
+    """``odometry_online``: what the ingest's online odometry did (its last status's ``odometry_*`` counters,
+    services/sensor_ingest/odometry_stage.py) in milliseconds and hertz, with the increments the filter
+    took as bridging a gap; empty when the ingest computed none."""
+    if "odometry_frames" not in ingest:
+        return {}
+    report: dict[str, Any] = {
+        "frames": ingest["odometry_frames"],
+        "poses": ingest["odometry_poses"],
+        "gaps": ingest["odometry_gaps"],
+        "gap_reasons": {k.removeprefix("odometry_gaps_"): v for k, v in ingest.items() if k.startswith("odometry_gaps_")},
+        "filter_odometry_gaps": filter_counters.get("odometry_gaps"),
+    }
+    if "odometry_rate_mhz" in ingest:
+        report["rate_hz"] = ingest["odometry_rate_mhz"] / 1000.0
+    for name in ("wall", "cpu", "latency"):
+        values = {k.rsplit("_", 1)[1]: v / 1000.0 for k, v in ingest.items() if k.startswith(f"odometry_{name}_us_")}
+        if values:
+            report[f"{name}_ms"] = values
+    return {"odometry_online": report}
 
 
 def scenario_odometry(args: argparse.Namespace, scenario: TrackingScenario, track: OdometryTrack | None) -> dict[str, Any]:

@@ -44,6 +44,7 @@ class LiveObservations:
         updates: arrival of the last shard of every update result, by request id.
         particle_counts: the filter's particle count with every published pose.
         filter_counters: the counters of the filter's last status (``recoveries``: times recovery fired).
+        ingest_counters: the counters of the ingest's last status (its online odometry's, when it computes it).
     """
 
     odometry: list[tuple[float, float]] = field(default_factory=list)
@@ -53,6 +54,7 @@ class LiveObservations:
     updates: dict[str, float] = field(default_factory=dict)
     particle_counts: list[int] = field(default_factory=list)
     filter_counters: dict[str, int] = field(default_factory=dict)
+    ingest_counters: dict[str, int] = field(default_factory=dict)
 
 
 def _span_rate(stamps: list[float], arrivals: list[float]) -> float | None:

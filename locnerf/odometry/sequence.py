@@ -9,19 +9,22 @@ EuRoC) matched to the run's stamps (:func:`locnerf.odometry.tracks.file_track`).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.errors import LocnerfInputError
+from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.geometry.validation import validate_pose_setting
 from locnerf.odometry.rgbd import RgbdOdometryConfig
 from locnerf.odometry.tracks import DEFAULT_MAX_GAP_S, OdometryTrack, file_track, rgbd_track
+from locnerf.sim.events import ImageEvent, RgbdFrameEvent, posed_depth_frame, rgb8
 from locnerf.sim.paths import SequencePath, bounce_order, read_sequence_frames
 
 SYNTHETIC = "synthetic"
 RGBD = "rgbd"
+RGBD_ONLINE = "rgbd-online"
 ODOMETRY_DOWNSCALE = 2
 """Colour size divisor of the frames the RGB-D odometry reads (7-Scenes: 320×240, its depth images' size)."""
 
@@ -47,12 +50,12 @@ class OdometrySourceConfig(BaseModel):
         if self.T_body_cam is not None:
             validate_pose_setting(self.T_body_cam, "odometry T_body_cam")
 
-    @property
-    def label(self) -> str:
-        """``synthetic``, ``rgbd-live`` or ``file:<name>``, as every result names its odometry."""
+    def label(self, live: bool = False) -> str:
+        """``synthetic``, ``rgbd`` (computed from the frames in order, offline), ``rgbd-online`` (computed
+        by the ingest as the frames are released, ``live``) or ``file:<name>``, as every result names its odometry."""
         if self.source == SYNTHETIC:
             return SYNTHETIC
-        return "rgbd-live" if self.source == RGBD else f"file:{Path(self.source).name}"
+        return f"file:{Path(self.source).name}" if self.source != RGBD else RGBD_ONLINE if live else RGBD
 
 
 def sequence_track(
@@ -78,9 +81,34 @@ def sequence_track(
         extrinsic = None if config.T_body_cam is None else torch.tensor(config.T_body_cam, dtype=torch.float64)
         return file_track(config.source, stamps, config.file_format, extrinsic, config.max_gap)
     frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour)
-    order = bounce_order(len(frames), passes)  # the replay's frames as positions in the split, never copied
+    return rgbd_track(frames, _replayed_frames(path, stamps, len(frames), passes), stamps, config.rgbd)
+
+
+def sequence_rgbd_frames(
+    path: SequencePath, stamps: torch.Tensor, folder: str | Path, split: str, T_depth_colour: torch.Tensor | None = None, passes: int = 1
+) -> Iterator[RgbdFrameEvent]:
+    """The RGB-D frames a camera replaying ``path`` delivers at ``stamps`` (K,), for odometry computed
+    online (services/sensor_ingest/odometry_stage.py): colour and depth read at the odometry's working
+    size (:data:`ODOMETRY_DOWNSCALE`) from ``folder``'s ``split`` as :func:`sequence_track` reads them,
+    8-bit colour and millimetre depth as sent. Read at once, each event made as it is asked for.
+
+    Raises:
+        LocnerfInputError: a replay not at the capture's frame rate; DatasetError: frames without depth.
+    """
+    frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour)
+    if frames.depths is None or frames.depth_intrinsics is None:
+        raise DatasetError(f"{frames.source}: RGB-D odometry needs depth images, and these frames have none")
+    indices = _replayed_frames(path, stamps, len(frames), passes)
+    return (
+        RgbdFrameEvent(stamp, ImageEvent(stamp, rgb8(frames.images[index]), frames.intrinsics, posed_depth_frame(frames, index)))
+        for stamp, index in zip(stamps.tolist(), indices)
+    )
+
+
+def _replayed_frames(path: SequencePath, stamps: torch.Tensor, count: int, passes: int) -> list[int]:
+    """The split's frame shown at each of ``stamps`` by a replay of ``count`` frames in ``passes`` passes."""
+    order = bounce_order(count, passes)  # the replay's frames as positions in the split, never copied
     try:
-        indices = [order[path.frame_at(float(stamp))] for stamp in stamps]
+        return [order[path.frame_at(float(stamp))] for stamp in stamps]
     except ValueError as error:
         raise LocnerfInputError(f"RGB-D odometry needs the replay at the capture's frame rate (--frame-rate): {error}") from error
-    return rgbd_track(frames, indices, stamps, config.rgbd)

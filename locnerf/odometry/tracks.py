@@ -4,7 +4,7 @@ The simulator synthesises odometry from the ground truth (:mod:`locnerf.sim.sens
 replaces it with what a camera measured. A track holds, at every odometry stamp of the run, the
 camera's pose in the odometry frame (metres, OpenGL camera axes) or nothing (a gap: the file has no
 sample near the stamp, or the RGB-D odometry failed on that frame). Its ``label`` says where it came
-from, for every result: ``file:<name>`` or ``rgbd-live``.
+from, for every result: ``file:<name>`` or ``rgbd`` (computed from the frames in order).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ class OdometryTrack:
     Attributes:
         poses: (K, 4, 4) float64 ``T_odom_cam``, metres (identity where ``valid`` is False).
         valid: (K,) bool: whether the stamp has odometry (False: a gap).
-        label: ``file:<name>`` or ``rgbd-live``.
+        label: ``file:<name>`` or ``rgbd``.
         report: counts for the result JSON (poses, gaps and their reasons, time per frame).
     """
 
@@ -100,4 +100,4 @@ def rgbd_track(frames: PosedImages, frame_indices: list[int], stamps: torch.Tens
             poses[k], valid[k] = pose @ T_depth_cam, True
     report = {"kind": config.kind, **odometry.counters.as_dict()}
     logger.info("RGB-D odometry: %s", report)
-    return OdometryTrack(poses, valid, "rgbd-live", report)
+    return OdometryTrack(poses, valid, "rgbd", report)

@@ -59,7 +59,21 @@ class GroundTruthEvent:
     stamp_ns: int | None = None
 
 
-SensorEvent = OdometryEvent | ImageEvent | GroundTruthEvent
+@dataclass(frozen=True)
+class RgbdFrameEvent:
+    """An RGB-D camera frame for the ingest's online odometry (services/sensor_ingest/odometry_stage.py),
+    not sent on the wire: the stage turns it into an :class:`OdometryEvent` of the colour camera.
+    ``frame.pixels`` (H, W, 3) uint8 RGB, ``frame.depth`` its depth image (required)."""
+
+    stamp: float
+    frame: ImageEvent
+
+    def __post_init__(self) -> None:
+        if self.frame.depth is None:
+            raise ValueError(f"RGB-D frame at {self.stamp} s without a depth image: the odometry needs one")
+
+
+SensorEvent = OdometryEvent | ImageEvent | GroundTruthEvent | RgbdFrameEvent
 
 
 def depth_millimetres(depth: torch.Tensor, scale: float = 1.0) -> np.ndarray:

@@ -19,7 +19,11 @@ class Ros2Config(BaseModel):
     domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID of the ROS 2 graph.")
     namespace: str = Field("", description="Namespace of the node and of its relative topic names, e.g. /robot1 ('' = global).")
     node_name: str = Field("locnerf", description="Node name shown by `ros2 node list`.")
-    odometry_topic: str = Field("odom", description="nav_msgs/msg/Odometry of the VIO (pose of base_frame_id in odom_frame_id).")
+    odometry_topic: str = Field(
+        "odom",
+        description="nav_msgs/msg/Odometry of the VIO (pose of base_frame_id in odom_frame_id); '' = none: an RGB-D camera without VIO, "
+        "whose odometry the ingest computes from the colour and depth frames (IngestConfig odometry.ros2_frames).",
+    )
     image_topic: str = Field("camera/image_raw", description="sensor_msgs/msg/Image (rgb8, bgr8, mono8) or, with compressed, its /compressed topic.")
     image_transport: Literal["raw", "compressed"] = Field(
         "raw", description="raw: sensor_msgs/msg/Image; compressed: sensor_msgs/msg/CompressedImage (jpeg, png)."

@@ -103,6 +103,8 @@ class Ros2Sensors:
         if self.config.depth_topic and self.config.depth_camera_info_topic:
             queued.append(("depth_camera_info", self.config.depth_camera_info_topic, CAMERA_INFO, False))
         for kind, topic, ros_type, urgent in queued:
+            if not topic:  # odometry_topic '': a camera without VIO (the ingest computes odometry from its RGB-D frames)
+                continue
             self.names[kind] = self.node.subscription(
                 topic, ros_type, lambda key, payload, attachment, kind=kind, urgent=urgent: arrive(urgent, kind, key, (payload, attachment))
             )

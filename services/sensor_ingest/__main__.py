@@ -22,7 +22,7 @@ from locnerf.errors import ConfigError
 from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus
-from locnerf.sim.events import SensorEvent
+from locnerf.sim.events import OdometryEvent, RgbdFrameEvent, SensorEvent
 from locnerf.sim.world import ProceduralWorld
 from locnerf_services.ros2.config import Ros2Config
 from locnerf_services.runtime import (
@@ -37,6 +37,7 @@ from locnerf_services.runtime import (
 )
 from locnerf_services.sensor_ingest.camera_source import CameraSourceConfig, camera_events
 from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
+from locnerf_services.sensor_ingest.odometry_stage import OdometryStage, OnlineOdometryConfig
 from locnerf_services.sensor_ingest.prefetch import PrefetchedEvents
 from locnerf_services.sensor_ingest.replay_source import ReplaySourceConfig, replay_events
 from locnerf_services.sensor_ingest.ros2_source import Ros2Ingest
@@ -75,6 +76,10 @@ class IngestConfig(BaseModel):
     rosbag: RosbagSourceConfig = Field(default_factory=RosbagSourceConfig, description="With source = 'rosbag': the bag and its topic names.")
     ros2: Ros2Config = Field(
         default_factory=Ros2Config, description="With source = 'ros2': domain, namespace, sensor topics and frames (enabled and the output fields are unused)."
+    )
+    odometry: OnlineOdometryConfig = Field(
+        default_factory=OnlineOdometryConfig,
+        description="Online RGB-D odometry of a source that gives RGB-D frames instead of odometry (the scenario with odometry.source = 'rgbd').",
     )
     speed: float = Field(1.0, ge=0, description="Sensor seconds per wall second (0: as fast as possible).")
     seed: int = Field(0, description="Seed of the noise draws.")
@@ -130,7 +135,7 @@ def sensor_events(config: IngestConfig, bad: BadMessages | None = None) -> Itera
     if config.source == "camera":
         return camera_events(config.camera)
     if config.source == "scenario":
-        return scenario_events(config.scenario, config.seed)
+        return scenario_events(config.scenario, config.seed, online_rgbd=True)
     if config.source == "rosbag":
         return rosbag_events(config.rosbag, (bad or BadMessages("sensor_ingest")).record)
     generator = torch.Generator().manual_seed(config.seed)
@@ -156,24 +161,46 @@ def sensor_events(config: IngestConfig, bad: BadMessages | None = None) -> Itera
     return replay_events(sequence, config.replay, generator)
 
 
-def relay_ros2(bus: Bus, config: IngestConfig, stop: threading.Event, status: StatusPublisher) -> int:
-    """Republish the ROS 2 sensor topics until ``stop``; returns the number of messages sent (reported by ``status``)."""
-    ingest = Ros2Ingest(bus, config.robot_id, config.ros2, status.bad)
-    logger.info("ros2 ingest: node %s_ingest in domain %d", config.ros2.node_name, config.ros2.domain_id)
-    try:
+def relay_ros2(bus: Bus, config: IngestConfig, stop: threading.Event, status: StatusPublisher) -> dict[str, int]:
+    """Republish the ROS 2 sensor topics until ``stop`` (with ``odometry.ros2_frames``, odometry computed
+    from the RGB-D frames); returns the counters (messages sent, ...) that ``status`` reports.
+
+    Raises:
+        ConfigError: ``odometry.ros2_frames`` without ``ros2.depth_topic`` or with a robot odometry topic.
+    """
+    online = config.odometry.ros2_frames
+    if online and (not config.ros2.depth_topic or config.ros2.odometry_topic):
+        raise ConfigError(
+            f"odometry.ros2_frames with ros2.depth_topic {config.ros2.depth_topic!r} and ros2.odometry_topic {config.ros2.odometry_topic!r}: "
+            "expected a depth topic and odometry_topic = '' (the odometry is computed from the colour and depth frames)"
+        )
+    with contextlib.ExitStack() as stack:
+        stage = stack.enter_context(OdometryStage(config.odometry, lambda event: bus.publish(*event_message(config.robot_id, event)))) if online else None
+        ingest = Ros2Ingest(bus, config.robot_id, config.ros2, status.bad, odometry=stage)
+        stack.callback(ingest.close)
+        logger.info(
+            "ros2 ingest: node %s_ingest in domain %d%s", config.ros2.node_name, config.ros2.domain_id, ", odometry from RGB-D frames" if online else ""
+        )
         while not stop.is_set():
             ingest.step(timeout=0.05)
             status.publish_if_due(ingest.counters())
-    finally:
-        ingest.close()
-    return ingest.sent
+    return ingest.counters(timings=True)
 
 
-def stream(bus: Bus, config: IngestConfig, stop: threading.Event, status: StatusPublisher) -> int:
-    """Publish the configured stream; returns the number of events sent (reported by ``status`` every second)."""
+def stream(bus: Bus, config: IngestConfig, stop: threading.Event, status: StatusPublisher) -> dict[str, int]:
+    """Publish the configured stream, RGB-D frames turned into odometry online (:class:`OdometryStage`);
+    returns the counters (events sent, the online odometry's) that ``status`` reports every second."""
     events: Iterable[SensorEvent] = sensor_events(config, status.bad)
     sent = 0
     progress = ProgressLog(config.progress_interval)
+    stage: OdometryStage | None = None
+
+    def publish_odometry(event: OdometryEvent) -> None:
+        bus.publish(*event_message(config.robot_id, event))
+
+    def counters(final: bool = False) -> dict[str, int]:
+        return {"events_sent": sent} | ({} if stage is None else stage.counters(timings=final))
+
     with contextlib.ExitStack() as stack:
         if config.prefetch_events:
             prefetched = stack.enter_context(PrefetchedEvents(events, config.prefetch_events, config.prefetch_nice))
@@ -181,14 +208,19 @@ def stream(bus: Bus, config: IngestConfig, stop: threading.Event, status: Status
                 logger.info("producing up to %d events before the first release", config.prefetch_events)
                 while not prefetched.wait_until_filled(0.2):
                     if stop.is_set():
-                        return sent
+                        return counters()
             events = prefetched
         for event in Pacer(config.speed).paced(events, stop.is_set):
-            bus.publish(*event_message(config.robot_id, event))
-            sent += 1
-            status.publish_if_due({"events_sent": sent})
+            if isinstance(event, RgbdFrameEvent):
+                if stage is None:
+                    stage = stack.enter_context(OdometryStage(config.odometry, publish_odometry))
+                stage.submit(event)
+            else:
+                bus.publish(*event_message(config.robot_id, event))
+                sent += 1
+            status.publish_if_due(counters())
             progress.sent(event)
-    return sent
+    return counters(final=True)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -221,9 +253,9 @@ def run(args: argparse.Namespace) -> int:
                 return 0
             logger.error("no filter with %d live worker(s) within %.0f s: not streaming", config.wait_for_workers, config.wait_timeout)
             return 1
-        sent = relay_ros2(bus, config, stop, status) if config.source == "ros2" else stream(bus, config, stop, status)
-        status.publish_if_due({"events_sent": sent}, force=True)
-        logger.info("ingest: %d events sent", sent)
+        counters = relay_ros2(bus, config, stop, status) if config.source == "ros2" else stream(bus, config, stop, status)
+        status.publish_if_due(counters, force=True)
+        logger.info("ingest: %d events sent; counters %s", counters["events_sent"], counters)
     finally:
         bus.close()
     return 0

@@ -6,7 +6,9 @@ Callbacks only enqueue: odometry, camera infos and depth-image wake-ups into a F
 into a one-slot buffer (newest only), depth images into the translator's small buffer. One thread
 translates and publishes: the queued odometry, camera infos and depth images first, then the
 newest colour image, which waits for the depth image of its stamp when a depth topic is set
-(:class:`~services.ros2.depth_pairing.DepthPairing`) and leaves as one RGB-D frame.
+(:class:`~services.ros2.depth_pairing.DepthPairing`) and leaves as one RGB-D frame. With an
+``odometry`` stage (a camera without VIO), each RGB-D frame is also handed to it, which publishes the
+odometry computed from it (services/sensor_ingest/odometry_stage.py).
 Bad samples are counted by kind and logged once per kind (:class:`BadMessages`), then dropped.
 """
 
@@ -16,12 +18,16 @@ import logging
 import time
 from collections.abc import Callable
 
+import torch
+
 from locnerf.messages import keys
-from locnerf.messages.codec import DecodeError
+from locnerf.messages.codec import DecodeError, decode_rgbd
+from locnerf.sim.events import DepthFrame, ImageEvent, RgbdFrameEvent
 from locnerf_services.ros2.config import Ros2Config
 from locnerf_services.ros2.node import Ros2Node
 from locnerf_services.ros2.sensors import Received, Ros2Sensors
 from locnerf_services.runtime import BadMessages
+from locnerf_services.sensor_ingest.odometry_stage import OdometryStage
 from locnerf_services.transport import Bus, Inbox, LatestSlot
 
 logger = logging.getLogger(__name__)
@@ -39,9 +45,19 @@ class Ros2Ingest:
         config: topic names, domain, namespace, frames and depth pairing (the filter's output fields are unused).
         bad: where bad samples are counted (the ingest's status reports it); a new one when None.
         clock: monotonic wall-clock seconds (the wait of a colour image for its depth image).
+        odometry: the online odometry fed with every RGB-D frame (None: the robot publishes odometry).
     """
 
-    def __init__(self, bus: Bus, robot_id: str, config: Ros2Config, bad: BadMessages | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        bus: Bus,
+        robot_id: str,
+        config: Ros2Config,
+        bad: BadMessages | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        odometry: OdometryStage | None = None,
+    ) -> None:
+        self.odometry = odometry
         self.bus = bus
         self.robot_id = robot_id
         self.node = Ros2Node(bus, config.domain_id, f"{config.node_name}_ingest", config.namespace)
@@ -76,10 +92,23 @@ class Ros2Ingest:
         frame = self._translate(self.sensors.paired_image)
         if frame is not None:
             self._publish("image", frame)
+            if self.odometry is not None:
+                self._odometry_frame(frame)
 
-    def counters(self) -> dict[str, int]:
-        """What the ingest's status reports besides its bad messages."""
+    def _odometry_frame(self, frame: bytes) -> None:
+        """Hand an RGB-D frame (as published) to the online odometry; a colour-only frame has nothing for it."""
+        header, pixels, millimetres = decode_rgbd(frame)
+        if header.depth is None or millimetres is None:
+            return
+        offset = None if header.depth.T_cam_depth is None else torch.tensor(header.depth.T_cam_depth, dtype=torch.float64)
+        image = ImageEvent(header.stamp, pixels, header.intrinsics, DepthFrame(millimetres, header.depth.intrinsics, offset), header.stamp_ns)
+        self.odometry.submit(RgbdFrameEvent(header.stamp, image))
+
+    def counters(self, timings: bool = False) -> dict[str, int]:
+        """What the ingest's status reports besides its bad messages (with ``timings``, the online odometry's times too)."""
         counts = {"events_sent": self.sent, "images_replaced": self.images.replaced + self.sensors.pairing.replaced}
+        if self.odometry is not None:
+            counts |= self.odometry.counters(timings)
         if self.sensors.config.depth_topic:
             counts["images_without_depth"] = self.sensors.images_without_depth
         return counts

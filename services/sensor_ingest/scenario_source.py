@@ -22,8 +22,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from locnerf.data.colour_camera import ColourCameraSetting, colour_camera_matrix
 from locnerf.data.sfm_poses import PoseSource
 from locnerf.errors import LocnerfInputError
-from locnerf.odometry.sequence import SYNTHETIC, OdometrySourceConfig, sequence_track
-from locnerf.sim.events import SensorEvent
+from locnerf.odometry.sequence import RGBD, RGBD_ONLINE, SYNTHETIC, OdometrySourceConfig, sequence_rgbd_frames, sequence_track
+from locnerf.odometry.tracks import OdometryTrack
+from locnerf.sim.events import GroundTruthEvent, RgbdFrameEvent, SensorEvent
 from locnerf.sim.paths import CameraPath, SequencePath, WorldPath, read_sequence_path
 from locnerf.sim.scenario import ScenarioConfig, run_stamps
 from locnerf.sim.sensors import CameraConfig, VioConfig
@@ -81,9 +82,12 @@ def _colour_camera(config: ScenarioSourceConfig) -> torch.Tensor | None:
     return None if config.T_depth_colour is None else colour_camera_matrix(config.T_depth_colour)
 
 
-def scenario_events(config: ScenarioSourceConfig, seed: int) -> Iterator[SensorEvent]:
+def scenario_events(config: ScenarioSourceConfig, seed: int, online_rgbd: bool = False) -> Iterator[SensorEvent]:
     """The offline scenario's events, truth in the metric world frame (what the wire carries); the
     odometry is the simulator's, or real (``config.odometry``: computed here from the frames, or a file).
+    With ``online_rgbd`` and RGB-D odometry, no odometry is computed here: every odometry stamp
+    yields the camera's RGB-D frame (:class:`RgbdFrameEvent`, after its ground truth) for the
+    ingest's online odometry (services/sensor_ingest/odometry_stage.py) to turn into odometry as it is released.
 
     Raises:
         LocnerfInputError: real odometry or several passes on the procedural world (it has no recorded frames).
@@ -96,5 +100,18 @@ def scenario_events(config: ScenarioSourceConfig, seed: int) -> Iterator[SensorE
         if config.odometry.source != SYNTHETIC or config.passes != 1:
             raise LocnerfInputError("sequence 'world': expected the synthetic odometry and one pass (real odometry needs recorded frames)")
         return simulated_events(path, run)
-    track = sequence_track(config.odometry, path, run_stamps(path, run), config.sequence, config.split, _colour_camera(config), config.passes)
+    stamps = run_stamps(path, run)
+    if online_rgbd and config.odometry.source == RGBD:
+        frames = sequence_rgbd_frames(path, stamps, config.sequence, config.split, _colour_camera(config), config.passes)
+        none = OdometryTrack(torch.eye(4, dtype=torch.float64).repeat(len(stamps), 1, 1), torch.zeros(len(stamps), dtype=torch.bool), RGBD_ONLINE)
+        return _with_frames(simulated_events(path, run, track=none), frames)
+    track = sequence_track(config.odometry, path, stamps, config.sequence, config.split, _colour_camera(config), config.passes)
     return simulated_events(path, run, track=track)
+
+
+def _with_frames(events: Iterator[SensorEvent], frames: Iterator[RgbdFrameEvent]) -> Iterator[SensorEvent]:
+    """``events`` (a ground truth at every odometry stamp, no odometry) with each stamp's RGB-D frame after its ground truth."""
+    for event in events:
+        yield event
+        if isinstance(event, GroundTruthEvent):
+            yield next(frames)
