@@ -19,8 +19,10 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/locnerf up --duration 40 --port 0 --plot out/demo/services.png
 
+# Tests that start services or time real-time behaviour run alone, after the rest has run on two workers.
 test: $(STAMP) lint
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not serial"
+	$(BIN)/python -m pytest -q -m serial
 
 # Lint and format check (ruff settings in pyproject.toml).
 lint: $(STAMP)
