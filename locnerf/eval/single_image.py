@@ -29,6 +29,7 @@ from tqdm import tqdm
 from locnerf.field.protocol import RadianceMap, SurfaceRays, surface_distance_of, surface_renderer
 from locnerf.filter import Localizer
 from locnerf.filter.depth_measurement import DepthObservation, SurfaceDistanceLookup
+from locnerf.filter.final_search import final_search
 from locnerf.filter.initialization import uniform
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
 from locnerf.render import PinholeIntrinsics, RenderRays
@@ -118,6 +119,8 @@ def run_trial(
     ``render_surface`` lets a localizer with ``measurement.warp`` weigh a converged cloud by re-projection.
     ``depth`` is the frame's depth image, used when the localizer's ``measurement.depth`` is set;
     ``surface_distance`` is the map's surface-distance layer (``measurement.depth.likelihood = "surface_distance"``).
+    With the localizer's ``final_search`` set, the estimate after the last update is searched once more on fixed
+    pixels (:mod:`locnerf.filter.final_search`); the histories get one more entry for it.
     """
     initialize_for_protocol(localizer, truth, config, localizer.generator, offset)
     truth = truth.double().cpu()
@@ -138,6 +141,15 @@ def run_trial(
         localizer.predict()
         rays += localizer.update(image, intrinsics, render_rays, render_surface, depth, surface_distance).rays
         estimate = localizer.estimate().pose
+        record(estimate, rays, time.perf_counter() - started)
+    search = localizer.config.final_search
+    if search is not None:
+        last = localizer.estimate()
+        found = final_search(
+            last.pose, last.covariance, image, intrinsics, render_rays, localizer.config.measurement, search, localizer.generator, localizer.device
+        )
+        rays += found.rays
+        estimate = found.pose
         record(estimate, rays, time.perf_counter() - started)
     result.seconds = time.perf_counter() - started
     result.translation_error = result.history_translation[-1]
