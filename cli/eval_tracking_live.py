@@ -30,7 +30,7 @@ from locnerf.field.protocol import MapNormalization
 from locnerf.maps.source import WORLD, open_map
 from locnerf.messages import keys
 from locnerf.messages.codec import decode
-from locnerf.messages.schemas import FilterStatus, Odometry, PoseEstimate, PoseStamped, UpdateResult
+from locnerf.messages.schemas import FilterStatus, Odometry, PoseEstimate, PoseStamped, ServiceStatus, UpdateResult
 from locnerf_cli import eval_tracking_odometry
 from locnerf_cli.up import ServiceConfigs, start_services
 from locnerf_services.filter_loop.__main__ import FilterProcessConfig
@@ -38,6 +38,7 @@ from locnerf_services.filter_loop.service import FilterLoopConfig
 from locnerf_services.local_hub import LocalHub
 from locnerf_services.nerf_worker.__main__ import WorkerConfig
 from locnerf_services.sensor_ingest.__main__ import IngestConfig
+from locnerf_services.sensor_ingest.odometry_stage import OnlineOdometryConfig
 from locnerf_services.transport import Inbox
 
 logger = logging.getLogger(__name__)
@@ -73,7 +74,9 @@ def service_configs(
     """The ingest, filter and worker configurations of the live run.
 
     The ingest produces its whole stream (``events`` events) before the clock starts, as the load
-    test does, so reading or rendering frames does not load the machine under test.
+    test does, so reading or rendering frames does not load the machine under test; with
+    ``--odometry rgbd`` that stream carries the RGB-D frames, and the ingest computes the odometry
+    online as it releases them (its cost loads the measured run).
     """
     map_spec = args.map if args.map == WORLD else str(Path(args.map).resolve())
     localizer = str(Path(args.config).resolve()) if args.config is not None else args.preset
@@ -81,7 +84,8 @@ def service_configs(
     if args.sequence != WORLD and is_bag(args.sequence):
         source = {"source": "rosbag", "rosbag": {"path": str(Path(args.sequence).resolve())}}
     else:
-        source = {"source": "scenario", "scenario": scenario_settings(args, image_rate, vio, colour_camera)}
+        scenario = scenario_settings(args, image_rate, vio, colour_camera)
+        source = {"source": "scenario", "scenario": scenario, "odometry": OnlineOdometryConfig(rgbd=scenario["odometry"]["rgbd"])}
     ingest = IngestConfig(prefetch_events=events, prefill=True, speed=1.0, **source, **common)
     loop = FilterLoopConfig(updates_per_image=args.updates_per_image, odometry_rate=args.odom_rate)
     filter_config = FilterProcessConfig(map=map_spec, device=args.device, localizer=localizer, loop=loop, **common)
@@ -103,6 +107,8 @@ def _observe(observed: LiveObservations, kind: str, payload: bytes, arrival: flo
         observed.particle_counts.append(pose.particle_count)
     elif kind == "status":
         observed.filter_counters = decode(payload, FilterStatus).counters
+    elif kind == "ingest":
+        observed.ingest_counters = decode(payload, ServiceStatus).counters
     else:
         observed.updates[decode(payload, UpdateResult).request_id] = arrival
 
@@ -122,6 +128,7 @@ def record_run(configs: ServiceConfigs, folder: Path, sensor_seconds: float) -> 
         "pose": keys.key(ROBOT_ID, keys.POSE),
         "result": keys.key(ROBOT_ID, keys.UPDATE_RESULT),
         "status": keys.key(ROBOT_ID, keys.STATUS),
+        "ingest": keys.key(ROBOT_ID, keys.INGEST_STATUS, ingest_id="*"),
     }
     # Callbacks only stamp and enqueue; decoding happens after the run, off the measured CPU.
     for kind, topic in topics.items():
@@ -182,8 +189,8 @@ def live_odometry_outputs(
     for real odometry), and with ``--out`` the TUM files and ``tracking.json`` written."""
     stamps = sorted(observed.odometry_poses)
     poses = torch.stack([observed.odometry_poses[s] for s in stamps]) if stamps else torch.zeros(0, 4, 4, dtype=torch.float64)
-    label = eval_tracking_odometry.odometry_label(args)
-    report = report | {"odometry": label}
+    label = eval_tracking_odometry.odometry_label(args, live=True)
+    report = report | {"odometry": label} | eval_tracking_odometry.online_odometry_report(observed.ingest_counters, observed.filter_counters)
     truth_stamps = [s for s in stamps if s in observed.truth]
     if label != "synthetic" and len(truth_stamps) >= 2:
         index = torch.tensor([stamps.index(s) for s in truth_stamps])
