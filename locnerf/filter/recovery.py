@@ -11,7 +11,9 @@ Two departures from the textbook, both for eq. 5's sharp likelihood (a power γ 
 squared error): the likelihood fed to the averages is the best particle's, not the mean (the
 localizer's choice, see ``Localizer._log_best_likelihood``), and a drop of up to ``τ`` nats
 (``tolerance``) is tolerated, since a few nats separate a view seen from 2 cm off from one seen
-exactly, or a plain wall from a textured one; τ = 0 is augmented MCL.
+exactly, or a plain wall from a textured one; τ = 0 is augmented MCL. Optionally (``average = "log"``)
+the averages are of the log-likelihoods, a geometric mean: one sharp update lifts the average of the
+likelihoods to within log(1/α) nats of itself, and the next ordinary updates then read as a drop.
 
 Where the fresh particles go: when the update's image was matched against the map's keyframes
 (:mod:`locnerf.filter.keyframes`), a share ``keyframe_share`` is drawn around the best-matching
@@ -32,6 +34,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -51,6 +54,11 @@ class RecoveryConfig(BaseModel):
     enabled: bool = Field(False, description="Inject fresh particles when the likelihood collapses.")
     alpha_slow: float = Field(0.05, gt=0, le=1, description="Rate of the long-term likelihood average (per update).")
     alpha_fast: float = Field(0.5, gt=0, le=1, description="Rate of the short-term likelihood average (per update).")
+    average: Literal["likelihood", "log"] = Field(
+        "likelihood",
+        description="What the averages average: the likelihoods (augmented MCL; one sharp update lifts the slow average by nats) "
+        "or their logs (a geometric mean: the slow level follows the typical update, not the best one).",
+    )
     max_fraction: float = Field(0.5, ge=0, le=1, description="Upper bound on the fraction of particles replaced per update.")
     tolerance: float = Field(
         0.0,
@@ -112,7 +120,7 @@ class RecoveryConfig(BaseModel):
         0,
         ge=0,
         description="After the refining updates, this many updates of one likelihood kind settle the new place's level without the drop test; "
-        "then their average (log of the mean likelihood) is compared with the slow average tracked before the detection (same kind): "
+        "then their average (as ``average`` says) is compared with the slow average tracked before the detection (same kind): "
         "more than verify_tolerance under it is a wrong place, and the filter relocalizes again (0: no check, the test resumes at once).",
     )
     verify_tolerance: float = Field(6.0, ge=0, description="Nats the settled level may lie under the level tracked before the detection.")
@@ -150,10 +158,13 @@ class InjectionPlan:
     around_estimate: bool = False
 
 
-def _log_ema(log_average: float | None, log_value: float, rate: float) -> float:
-    """log((1 − α)·avg + α·value) from logs; the first value initialises the average."""
+def _log_ema(log_average: float | None, log_value: float, rate: float, of_logs: bool = False) -> float:
+    """log((1 − α)·avg + α·value) from logs, or with ``of_logs`` (1 − α)·log avg + α·log value; the
+    first value initialises the average."""
     if log_average is None:
         return log_value
+    if of_logs:
+        return log_average + rate * (log_value - log_average)
     a, b = math.log1p(-rate) + log_average if rate < 1 else -math.inf, math.log(rate) + log_value
     high = max(a, b)
     return high + math.log(math.exp(a - high) + math.exp(b - high))
@@ -234,8 +245,9 @@ class RecoveryMonitor:
         config = self.config
         fraction = 0.0
         if math.isfinite(log_mean_likelihood):
-            self.log_slow = _log_ema(self.log_slow, log_mean_likelihood, config.alpha_slow)
-            self.log_fast = _log_ema(self.log_fast, log_mean_likelihood, config.alpha_fast)
+            of_logs = config.average == "log"
+            self.log_slow = _log_ema(self.log_slow, log_mean_likelihood, config.alpha_slow, of_logs)
+            self.log_fast = _log_ema(self.log_fast, log_mean_likelihood, config.alpha_fast, of_logs)
             if config.enabled:
                 ratio = math.exp(min(0.0, self.log_fast - self.log_slow + config.tolerance))
                 fraction = min(config.max_fraction, max(0.0, 1.0 - ratio))
@@ -250,7 +262,7 @@ class RecoveryMonitor:
 
     def _verify(self, log_mean_likelihood: float) -> float:
         """Collect the new place's likelihoods; after ``verify_updates`` of them compare their level
-        (log of the mean likelihood) with the one tracked before the detection: more than
+        (log of the mean likelihood, or the mean log-likelihood with ``average = "log"``) with the one tracked before the detection: more than
         ``verify_tolerance`` under it re-fires (``max_fraction``), else the averages start from it."""
         config = self.config
         if math.isfinite(log_mean_likelihood):
@@ -258,7 +270,7 @@ class RecoveryMonitor:
         if len(self.settling) < config.verify_updates:
             return 0.0
         values = torch.tensor(self.settling, dtype=torch.float64)
-        level = float(torch.logsumexp(values, 0)) - math.log(len(self.settling))
+        level = float(values.mean()) if config.average == "log" else float(torch.logsumexp(values, 0)) - math.log(len(self.settling))
         before = self.tracked.get(self.kind)
         self.verifying = False
         self.settling = []

@@ -156,3 +156,17 @@ def test_a_joined_index_finds_views_of_either_part():
         torch.testing.assert_close(found[0], poses[view])
     with pytest.raises(ValueError, match="expected the same"):
         joined_index(first, index_from_views(poses[4:], views[4:, :6, :8], camera.scaled(0.5), 8))
+
+
+def test_a_log_average_is_not_lifted_by_one_sharp_update():
+    """The likelihoods' average jumps to within log(1/α_slow) of one sharp update (e^30 among e^20s) and the
+    next ordinary update reads as a 7-nat drop; the logs' average moves by α·10 = 0.5 and reads nothing."""
+    for average, fired in (("likelihood", 1), ("log", 0)):
+        monitor = RecoveryMonitor(RecoveryConfig(enabled=True, average=average, alpha_slow=0.05, alpha_fast=1.0, tolerance=6.0, max_fraction=0.9))
+        for value in [20.0] * 10 + [30.0, 20.0]:
+            monitor.observe(value)
+        expected = math.log(0.95 * math.exp(20.0) + 0.05 * math.exp(30.0)) if average == "likelihood" else 20.5
+        assert monitor.fired == fired
+        assert monitor.log_slow == pytest.approx(
+            0.95 * expected + 0.05 * 20.0 if average == "log" else math.log(0.95 * math.exp(expected) + 0.05 * math.exp(20.0))
+        )
