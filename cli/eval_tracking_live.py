@@ -45,7 +45,8 @@ logger = logging.getLogger(__name__)
 
 ROBOT_ID = "evaltrack"
 STARTUP_TIMEOUT_S = 240.0
-SETTLE_S = 3.0  # wall seconds after the ingest's last message for the last poses and results
+SETTLE_S = 3.0  # wall seconds after the ingest's last message, at most, for the last poses and results
+QUIET_S = 0.75  # the filter has finished once no pose or update result came for this long (and a status after them)
 
 
 def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str, float], colour_camera: torch.Tensor | None = None) -> dict[str, Any]:
@@ -113,6 +114,18 @@ def _observe(observed: LiveObservations, kind: str, payload: bytes, arrival: flo
         observed.updates[decode(payload, UpdateResult).request_id] = arrival
 
 
+def settle(last_arrival: dict[str, float]) -> None:
+    """Wait, after the ingest has exited, until the filter has finished: no pose or update result for
+    ``QUIET_S`` and a filter status published after the last of them (so its counters include every
+    update), at most ``SETTLE_S``. ``last_arrival``: monotonic arrival time of the newest message per kind."""
+    give_up = time.monotonic() + SETTLE_S
+    while time.monotonic() < give_up:
+        last_output = max(last_arrival["pose"], last_arrival["result"])
+        if time.monotonic() - last_output >= QUIET_S and last_arrival["status"] > last_output:
+            return
+        time.sleep(0.05)
+
+
 def record_run(configs: ServiceConfigs, folder: Path, sensor_seconds: float) -> LiveObservations:
     """Start the services, record the bus until the ingest has streamed everything, stop them.
 
@@ -131,8 +144,14 @@ def record_run(configs: ServiceConfigs, folder: Path, sensor_seconds: float) -> 
         "ingest": keys.key(ROBOT_ID, keys.INGEST_STATUS, ingest_id="*"),
     }
     # Callbacks only stamp and enqueue; decoding happens after the run, off the measured CPU.
+    last_arrival = dict.fromkeys(topics, 0.0)
+
+    def arrived(kind: str) -> float:
+        last_arrival[kind] = time.monotonic()
+        return last_arrival[kind]
+
     for kind, topic in topics.items():
-        hub.subscribe(topic, lambda _k, p, kind=kind: inbox.put((kind, p, time.monotonic())))
+        hub.subscribe(topic, lambda _k, p, kind=kind: inbox.put((kind, p, arrived(kind))))
     observed = LiveObservations()
     try:
         start_services(hub.supervisor, configs)
@@ -144,7 +163,7 @@ def record_run(configs: ServiceConfigs, folder: Path, sensor_seconds: float) -> 
             if time.monotonic() > give_up:
                 raise RuntimeError(f"the run took more than {STARTUP_TIMEOUT_S + sensor_seconds * 4:.0f} s: see the logs in {folder}")
             time.sleep(0.2)
-        time.sleep(SETTLE_S)
+        settle(last_arrival)
     finally:
         hub.close()
     while (item := inbox.get(timeout=0.0)) is not None:
