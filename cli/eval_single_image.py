@@ -13,11 +13,13 @@ from tqdm import tqdm
 from locnerf.config import load_config, preset
 from locnerf.data import read_dataset
 from locnerf.data.colour_camera import read_on_map_camera
+from locnerf.data.posed_images import frame_change
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.paper_logs import read_logged_trials
 from locnerf.eval.plots import plot_error_curves, plot_images_beside_renders, plot_mean_error_against_rays, plot_success_against_rays
 from locnerf.eval.real_data import (
+    in_truth_units,
     logged_curve,
     logged_views,
     mean_error_by_budget,
@@ -27,6 +29,7 @@ from locnerf.eval.real_data import (
     success_by_budget,
     totals,
     trial_record,
+    view_in_frame,
 )
 from locnerf.eval.single_image import TrialConfig
 from locnerf.filter import Localizer
@@ -68,22 +71,30 @@ def run(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--trials {args.trials}: expected >= 1 seeded trials, or --starts with logged ones")
     device = resolve_device(args.device)
     radiance_map = open_map(args.map, device)
-    pool = read_on_map_camera(args.data, radiance_map, args.poses, split=args.split, downscale=args.downscale)
+    own = read_on_map_camera(args.data, radiance_map, args.poses, in_map_frame=False, split=args.split, downscale=args.downscale)
+    pool = own.in_frame(radiance_map.normalization)
+    # Distances are the ground truth's: an aligned SfM map's units differ from its frame's by the fitted scale.
+    units = radiance_map.normalization.scale / own.normalization.scale
     generator = torch.Generator().manual_seed(args.seed)
     views = []
     if args.starts is not None:
-        every_frame = pool if args.split == "all" else read_on_map_camera(args.data, radiance_map, args.poses, split="all", downscale=args.downscale)
+        every_frame = (
+            own if args.split == "all" else read_on_map_camera(args.data, radiance_map, args.poses, in_map_frame=False, split="all", downscale=args.downscale)
+        )
         trials = read_logged_trials(args.starts, scene=args.scene or args.data.name)
-        views += logged_views(every_frame, trials, held_out_frames(args.data, "all", args.downscale))
+        logged = logged_views(every_frame, trials, held_out_frames(args.data, "all", args.downscale))
+        move = frame_change(every_frame.normalization, radiance_map.normalization)
+        views += logged if pool is own else [view_in_frame(view, move) for view in logged]
     if args.trials:
         views += seeded_views(pool, args.trials, generator, held_out_frames(args.data, args.split, args.downscale))
     config = without_depth(load_config(args.config) if args.config else preset(args.preset), args.no_depth)
     keyframes = recovery_keyframes(config, radiance_map, pool.intrinsics, args.seed + 2) if args.protocol == "global" else None
     localizer = Localizer(config, generator, device=device, keyframes=keyframes)
-    trial_config = from_flags(TrialConfig, {"protocol": args.protocol, "updates": args.updates, "up": radiance_map.normalization.up})
+    spreads = {"translation_offset": TrialConfig().translation_offset * units, "global_half_width": TrialConfig().global_half_width * units}
+    trial_config = from_flags(TrialConfig, {"protocol": args.protocol, "updates": args.updates, "up": radiance_map.normalization.up, **spreads})
     results = []
     for view in tqdm(views, desc=f"{args.protocol} trials", disable=args.json):
-        results += run_views([view], radiance_map, pool.intrinsics, localizer, trial_config)
+        results += [in_truth_units(result, units) for result in run_views([view], radiance_map, pool.intrinsics, localizer, trial_config)]
         logger.info("frame %d: %.4f units, %.2f deg, %.1f s", view.frame, results[-1].translation_error, results[-1].rotation_error_deg, results[-1].seconds)
     records = [trial_record(v, r) for v, r in zip(views, results)]
     report = {
@@ -97,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         "pixels": config.measurement.pixels,
         "depth": config.measurement.depth.model_dump() if config.measurement.depth is not None and pool.depths is not None else None,
         "device": str(device),
+        "map_units_per_truth_unit": units,
         "totals": totals(records),
         "trials": records,
     }
@@ -147,7 +159,7 @@ def write_plots(folder: Path, protocol: str, views, results) -> list[str]:
     if logged:
         curves["locnerf (ours), logged starts"] = [result_curve(r) for _, r in logged]
         for label, attribute in (("Loc-NeRF (original logs)", "locnerf"), ("iNeRF (original logs)", "inerf")):
-            runs = [(getattr(view.logged, attribute), view.truth) for view, _ in logged]
+            runs = [(getattr(view.logged, attribute), view.logged.truth) for view, _ in logged]
             if all(run is not None and run.rays is not None for run, _ in runs):
                 curves[label] = [logged_curve(run, truth) for run, truth in runs]
     highest = max(curve[0][-1] for group in curves.values() for curve in group)

@@ -40,6 +40,11 @@ def add_sfm_arguments(build: argparse.ArgumentParser) -> None:
         "--trajectory", help="TUM trajectory (odometry/VIO, metres, z up) recorded with the capture: scale and gravity by a similarity fit by stamp"
     )
     group.add_argument("--no-depth-scale", action="store_true", help="do not take the scale from the capture's depth images")
+    group.add_argument(
+        "--calibrate-depth-camera",
+        action="store_true",
+        help="place an RGB-D capture's depth camera from the SfM points against the depth images (experimental; default: at the colour camera)",
+    )
     group.add_argument("--sfm-features", type=int, help=f"most SIFT features per image (default {SfmConfig().max_features})")
     group.add_argument("--sfm-camera", help=f"COLMAP camera model (default {SfmConfig().camera_model})")
     group.add_argument("--vocab-tree", help="COLMAP vocabulary-tree file: enables loop detection in sequential matching")
@@ -62,7 +67,9 @@ def posed_capture_of_args(args: argparse.Namespace) -> tuple[PosedImages, dict]:
     values = {"max_features": args.sfm_features, "camera_model": args.sfm_camera, "vocab_tree": args.vocab_tree, "seed": args.seed}
     sfm = from_flags(SfmConfig, {key: value for key, value in values.items() if value is not None})
     cache = Path(args.sfm_cache) if args.sfm_cache else Path(f"{args.out}.sfm")
-    return posed_capture(args.data, cache, metric, sfm, downscale=args.downscale, stride=args.stride, split=args.split)
+    return posed_capture(
+        args.data, cache, metric, sfm, downscale=args.downscale, stride=args.stride, split=args.split, calibrate_depth_camera=args.calibrate_depth_camera
+    )
 
 
 def add_align_command(commands: argparse._SubParsersAction) -> None:
@@ -89,7 +96,7 @@ def run_align(args: argparse.Namespace) -> int:
     similarity, report = alignment_errors(radiance_map.reference_poses().double().numpy()[shared], truth_poses)
     record = {"data": args.data, "split": args.split, "poses": args.poses, **report["summary"]}
     if args.out:
-        radiance_map.info.normalization = aligned_normalization(radiance_map.normalization, similarity)
+        radiance_map.info.normalization = aligned_normalization(radiance_map.normalization, similarity, truth.normalization)
         radiance_map.metadata.update(aligned_to=record, **{POSES_METADATA_KEY: args.poses})
         save_map(radiance_map, args.out)
     print(json.dumps({**record, **({"frames": [names[i] for i in shared], **report} if args.json else {})}))

@@ -320,12 +320,13 @@ def check_map_poses(radiance_map: object, poses: str) -> str:
     return poses
 
 
-def read_on_map_camera(data: object, radiance_map: object, poses: str = "dslam", **read: object) -> PosedImages:
+def read_on_map_camera(data: object, radiance_map: object, poses: str = "dslam", in_map_frame: bool = True, **read: object) -> PosedImages:
     """A data set's frames (:func:`locnerf.data.read_dataset` with ``read``'s arguments) posed by ``poses``,
     on the colour camera ``radiance_map`` was built for (:func:`on_map_camera`; with ``sfm`` the poses
     are the colour camera's already and the map's calibration places the depth camera), in the map's frame
     (:meth:`PosedImages.in_frame`: a map aligned to the data set by ``locnerf map align`` has its own), and
     through the lens an SfM map records onto its camera (:func:`locnerf.data.map_lens.on_map_lens`).
+    ``in_map_frame=False`` leaves them in the reader's frame (for what else is given in that frame: logged starts).
 
     Raises:
         DatasetError: ``poses`` unknown or not the map's (:func:`check_map_poses`), and the reader's errors.
@@ -333,7 +334,8 @@ def read_on_map_camera(data: object, radiance_map: object, poses: str = "dslam",
     check_map_poses(radiance_map, poses)
     T_depth_colour = map_colour_camera(radiance_map) if poses == "sfm" else None
     frames = on_map_camera(read_dataset(data, poses=poses, T_depth_colour=T_depth_colour, **read), radiance_map)
-    return on_map_lens(frames, radiance_map).in_frame(radiance_map.normalization)
+    frames = on_map_lens(frames, radiance_map)
+    return frames.in_frame(radiance_map.normalization) if in_map_frame else frames
 
 
 def sfm_training_frames(data: object, split: str, downscale: int | None, stride: int, calibrate: bool = True) -> tuple[PosedImages, dict]:

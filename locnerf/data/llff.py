@@ -31,6 +31,8 @@ logger = logging.getLogger(__name__)
 BD_FACTOR = 0.75
 HOLDOUT_EVERY = 8
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+NDC_CUBE = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+"""The scene bounds of an NDC map: its normalised device coordinates' cube."""
 
 
 def _normalize(vector: np.ndarray) -> np.ndarray:
@@ -50,19 +52,31 @@ def average_pose(poses: np.ndarray) -> np.ndarray:
 
 
 def normalize_llff_poses(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """nerf-pytorch's LLFF normalisation.
+    """nerf-pytorch's LLFF normalisation of ``poses_bounds.npy``'s rows (:func:`normalize_forward_facing`).
 
     Args:
         poses_bounds: (K, 17) rows of ``poses_bounds.npy``.
+    Returns:
+        as :func:`normalize_forward_facing`.
+    """
+    raw = poses_bounds[:, :15].reshape(-1, 3, 5).astype(np.float64)
+    # (down, right, back) -> (right, up, back): columns [1, -0, 2].
+    poses = np.concatenate([raw[:, :, 1:2], -raw[:, :, 0:1], raw[:, :, 2:4]], axis=2)
+    return normalize_forward_facing(poses, poses_bounds[:, 15:17].astype(np.float64))
+
+
+def normalize_forward_facing(poses: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """nerf-pytorch's forward-facing normalisation: scale by ``1 / (bd_factor · min near bound)``, then recentre.
+
+    Args:
+        poses: (K, 3, 4) OpenGL camera-to-world poses in the data set's world frame.
+        bounds: (K, 2) each image's near and far depth bounds, the same units.
     Returns:
         T_world_cam (K, 4, 4) OpenGL camera-to-world in the map frame, bounds (K, 2) in map units,
         T_map_scaled (4, 4) the recentring applied after scaling, and the scale (map units per
         data-set unit).
     """
-    raw = poses_bounds[:, :15].reshape(-1, 3, 5).astype(np.float64)
-    bounds = poses_bounds[:, 15:17].astype(np.float64)
-    # (down, right, back) -> (right, up, back): columns [1, -0, 2].
-    poses = np.concatenate([raw[:, :, 1:2], -raw[:, :, 0:1], raw[:, :, 2:4]], axis=2)
+    poses = poses.astype(np.float64).copy()
     scale = 1.0 / (bounds.min() * BD_FACTOR)
     poses[:, :, 3] *= scale
     bounds = bounds * scale
@@ -72,7 +86,12 @@ def normalize_llff_poses(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return T_map_scaled @ homogeneous, bounds, T_map_scaled, scale
 
 
-def _image_folder(folder: Path, downscale: int) -> tuple[Path, float]:
+def forward_facing_normalization(T_map_scaled: np.ndarray, scale: float, bounds: np.ndarray) -> MapNormalization:
+    """The NDC map normalisation of :func:`normalize_forward_facing`'s outputs (``bounds`` in map units)."""
+    return MapNormalization(T_map_dataset=T_map_scaled.tolist(), scale=scale, ndc=True, near=float(bounds.min() * 0.9), far=float(bounds.max()))
+
+
+def image_folder(folder: Path, downscale: int) -> tuple[Path, float]:
     """The folder to read and the extra resize factor: ``images_<d>`` if present, else ``images`` resized."""
     exact = folder / f"images_{downscale}" if downscale != 1 else folder / "images"
     if exact.is_dir():
@@ -107,12 +126,12 @@ def read_llff(folder: str | Path, downscale: int = 8, split: str = "all", holdou
     if not np.isfinite(poses_bounds).all():
         bad = int(np.flatnonzero(~np.isfinite(poses_bounds).all(axis=1))[0])
         raise DatasetError(f"{poses_file}: row {bad} holds a NaN or infinite value")
-    image_folder, resize = _image_folder(folder, downscale)
-    paths = sorted(p for p in image_folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    image_folder_path, resize = image_folder(folder, downscale)
+    paths = sorted(p for p in image_folder_path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not paths:
-        raise FileNotFoundError(f"LLFF folder {image_folder}: no images")
+        raise FileNotFoundError(f"LLFF folder {image_folder_path}: no images")
     if len(paths) != len(poses_bounds):
-        raise DatasetError(f"{poses_file} has {len(poses_bounds)} poses but {image_folder} has {len(paths)} images")
+        raise DatasetError(f"{poses_file} has {len(poses_bounds)} poses but {image_folder_path} has {len(paths)} images")
     T_world_cam, bounds, T_map_scaled, scale = normalize_llff_poses(poses_bounds)
     positions = _split_positions(len(paths), split, holdout_every)
     images = stack_same_size([read_rgb(paths[i], resize) for i in positions], [paths[i] for i in positions])
@@ -120,10 +139,10 @@ def read_llff(folder: str | Path, downscale: int = 8, split: str = "all", holdou
     full_height, full_width, full_focal = poses_bounds[0, 4], poses_bounds[0, 9], poses_bounds[0, 14]
     focal = full_focal * width / full_width
     if abs(height / width - full_height / full_width) > 0.02:
-        raise DatasetError(f"{image_folder}: images {width}x{height} do not match the aspect of the poses' {full_width:.0f}x{full_height:.0f}")
+        raise DatasetError(f"{image_folder_path}: images {width}x{height} do not match the aspect of the poses' {full_width:.0f}x{full_height:.0f}")
     # hwf says nothing of the principal point: LLFF (and COLMAP's default) put it at the image centre.
     intrinsics = PinholeIntrinsics.centred(focal, focal, width, height)
-    normalization = MapNormalization(T_map_dataset=T_map_scaled.tolist(), scale=scale, ndc=True, near=float(bounds.min() * 0.9), far=float(bounds.max()))
+    normalization = forward_facing_normalization(T_map_scaled, scale, bounds)
     logger.info("LLFF %s: %d images %dx%d, scale %.4f", folder, len(positions), width, height, scale)
     return PosedImages(
         images=torch.from_numpy(images),
@@ -133,7 +152,7 @@ def read_llff(folder: str | Path, downscale: int = 8, split: str = "all", holdou
         far=normalization.far,
         normalization=normalization,
         names=[paths[i].stem for i in positions],
-        scene_bounds=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], dtype=torch.float64),
+        scene_bounds=NDC_CUBE.clone(),
         source=str(folder),
         indices=positions,
     )

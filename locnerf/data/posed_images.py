@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -112,35 +113,45 @@ class PosedImages:
 
         Poses go through the metric frame (``normalization.metric_to_map(self.normalization.map_to_metric(T))``);
         depths, near, far and ``T_cam_depth``'s translation are rescaled to the new map units, and the scene box is
-        the box of its transformed corners. Returns ``self`` when both frames coincide.
+        the box of its transformed corners. Between two NDC frames (forward-facing maps: an LLFF capture's and the
+        map built from its images by structure from motion) the poses move the same way and the bounds are the
+        target's (its NDC cube, near and far: NDC is the map's own warp). Returns ``self`` when both frames coincide.
 
         Raises:
-            DatasetError: if either frame is NDC (forward-facing LLFF frames cannot be re-expressed).
+            DatasetError: if one frame is NDC and the other not.
         """
         ours = self.normalization
         if torch.allclose(torch.tensor(ours.T_map_dataset), torch.tensor(normalization.T_map_dataset), atol=1e-9) and math.isclose(
             ours.scale, normalization.scale
         ):
             return self
-        if ours.ndc or normalization.ndc:
-            raise DatasetError(f"{self.source}: NDC frames cannot be re-expressed in another map frame (expected a map without NDC rays)")
+        if ours.ndc != normalization.ndc:
+            raise DatasetError(f"{self.source}: an NDC frame and one without NDC rays cannot be re-expressed in each other (expected both or neither)")
+        moved = frame_change(ours, normalization)
+        if ours.ndc:
+            return replace(self, T_world_cam=moved(self.T_world_cam.double()), near=normalization.near, far=normalization.far, normalization=normalization)
         factor = normalization.scale / ours.scale
         corners = torch.cartesian_prod(*self.scene_bounds.double().T)
-        moved = normalization.metric_to_map(ours.map_to_metric(_at(corners)))[:, :3, 3]
+        corners = moved(_at(corners))[:, :3, 3]
         T_cam_depth = None
         if self.T_cam_depth is not None:
             T_cam_depth = self.T_cam_depth.double().clone()
             T_cam_depth[:3, 3] *= factor
         return replace(
             self,
-            T_world_cam=normalization.metric_to_map(ours.map_to_metric(self.T_world_cam.double())),
+            T_world_cam=moved(self.T_world_cam.double()),
             near=self.near * factor,
             far=self.far * factor,
             normalization=normalization,
-            scene_bounds=torch.stack((moved.min(0).values, moved.max(0).values)),
+            scene_bounds=torch.stack((corners.min(0).values, corners.max(0).values)),
             depths=None if self.depths is None else self.depths * factor,
             T_cam_depth=T_cam_depth,
         )
+
+
+def frame_change(source: MapNormalization, target: MapNormalization) -> Callable[[torch.Tensor], torch.Tensor]:
+    """Poses (..., 4, 4) in the map frame of ``source`` -> the same poses in that of ``target`` (through their common world)."""
+    return lambda T: target.metric_to_map(source.map_to_metric(T))
 
 
 def _at(points: torch.Tensor) -> torch.Tensor:

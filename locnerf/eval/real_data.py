@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import bisect
 import statistics
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import torch
 
 from locnerf.data.posed_images import PosedImages
-from locnerf.errors import DatasetError
+from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.eval.paper_logs import LoggedRun, LoggedTrial
 from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialConfig, TrialResult, run_trial
 from locnerf.field.protocol import RadianceMap, surface_distance_of, surface_renderer
@@ -106,6 +107,34 @@ def run_views(views: list[View], radiance_map: RadianceMap, intrinsics: PinholeI
     ]
 
 
+def view_in_frame(view: View, move: Callable[[torch.Tensor], torch.Tensor]) -> View:
+    """``view`` in another map frame; ``move`` takes poses (..., 4, 4) float64 there (a similarity,
+    :func:`locnerf.data.posed_images.frame_change`). The truth moves; the start's translation offset becomes the
+    moved displacement from the truth's position to that plus the offset (rotated and scaled with the frame); the
+    logged trial stays in its own frame (the original's figures are scored against its own truth).
+
+    Raises:
+        LocnerfInputError: for a view with a depth image (its depths would need the new frame's units).
+    """
+    if view.depth is not None:
+        raise LocnerfInputError(f"frame {view.frame}: a view with a depth image cannot be moved into another map frame (expected colour only)")
+    truth = move(view.truth.double())
+    offset = None
+    if view.offset is not None:
+        shifted = view.truth.double().clone()
+        shifted[:3, 3] += view.offset.double()
+        offset = move(shifted)[:3, 3] - truth[:3, 3]
+    return replace(view, truth=truth, offset=offset)
+
+
+def in_truth_units(result: TrialResult, units: float) -> TrialResult:
+    """``result`` with its translation errors divided by ``units`` (map units per unit of the ground truth's frame:
+    an SfM map aligned by ``locnerf map align`` has its own); ``result`` itself when ``units`` is 1."""
+    if units == 1.0:
+        return result
+    return replace(result, translation_error=result.translation_error / units, history_translation=[e / units for e in result.history_translation])
+
+
 Curve = tuple[list[int], list[float], list[float]]
 """One run's (cumulative rays rendered, translation errors, rotation errors in degrees), aligned."""
 
@@ -169,8 +198,8 @@ def trial_record(view: View, result: TrialResult) -> dict:
         },
     }
     if view.logged is not None:
-        record["original_locnerf"] = _original(view.logged.locnerf, view.truth)
-        record["original_inerf"] = _original(view.logged.inerf, view.truth)
+        record["original_locnerf"] = _original(view.logged.locnerf, view.logged.truth)
+        record["original_inerf"] = _original(view.logged.inerf, view.logged.truth)
     return record
 
 

@@ -10,7 +10,6 @@ SfM map in the ground truth's frame with estimates mapped through that one simil
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -57,22 +56,21 @@ def alignment_errors(map_poses: np.ndarray, truth_poses: np.ndarray) -> tuple[Si
     return similarity, {"summary": summary, "translation": translation.tolist(), "rotation_deg": rotation.tolist()}
 
 
-def aligned_normalization(normalization: MapNormalization, map_to_truth: Similarity) -> MapNormalization:
-    """``normalization`` whose ``metric_to_map`` takes ground-truth poses into the map frame (the inverse of ``map_to_truth``).
+def aligned_normalization(normalization: MapNormalization, map_to_truth: Similarity, truth: MapNormalization | None = None) -> MapNormalization:
+    """``normalization`` whose ``metric_to_map`` takes the ground truth's world poses into the map frame.
 
-    ``metric_to_map(T) = T_map_dataset · scaled(T, scale)``: with ``scale = 1/s`` and ``T_map_dataset = [Rᵀ | -Rᵀt/s]`` a truth
-    position ``x`` goes to ``Rᵀ(x - t)/s``, the map position that ``map_to_truth`` takes to ``x``.
-
-    Raises:
-        LocnerfInputError: for a map whose normalization is not the identity (an SfM map's is).
+    ``map_to_truth`` takes map poses to the ground truth reader's frame, whose own normalization ``truth`` (the
+    identity when None: a metric reader such as 7-Scenes') takes its world to that frame. The result is the
+    composition ``map_to_truth⁻¹ ∘ truth.metric_to_map``: with ``truth = (A, a)`` (``x ↦ a·A_R x + A_t``) and
+    ``map_to_truth = (s, R, t)``, ``scale = a/s`` and ``T_map_dataset = [RᵀA_R | Rᵀ(A_t - t)/s]``. The map's own
+    frame (its NDC warp, near, far, up) is kept: only its relation to a data-set world changes.
     """
-    identity = np.eye(4)
-    if not np.allclose(np.asarray(normalization.T_map_dataset), identity) or not math.isclose(normalization.scale, 1.0):
-        raise LocnerfInputError("map align: expected a map built by structure from motion (identity normalization), this one has its own")
+    truth = truth or MapNormalization()
+    A = np.asarray(truth.T_map_dataset, dtype=np.float64)
     transform = np.eye(4)
-    transform[:3, :3] = map_to_truth.rotation.T
-    transform[:3, 3] = -map_to_truth.rotation.T @ map_to_truth.translation / map_to_truth.scale
-    return normalization.model_copy(update={"T_map_dataset": transform.tolist(), "scale": 1.0 / map_to_truth.scale})
+    transform[:3, :3] = map_to_truth.rotation.T @ A[:3, :3]
+    transform[:3, 3] = map_to_truth.rotation.T @ (A[:3, 3] - map_to_truth.translation) / map_to_truth.scale
+    return normalization.model_copy(update={"T_map_dataset": transform.tolist(), "scale": truth.scale / map_to_truth.scale})
 
 
 def truth_of_frames(names: list[str], truth_names: list[str], truth_poses: torch.Tensor) -> tuple[list[int], np.ndarray]:

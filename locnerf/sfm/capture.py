@@ -1,7 +1,8 @@
 """What a capture to be posed by structure from motion holds: its images in capture order, and their depth images if any.
 
-A capture is an image folder, a video file (frames picked by :mod:`locnerf.sfm.video`), or an RGB-D
-data set in the 7-Scenes layout whose pose files are not read. An existing COLMAP sparse model and a
+A capture is an image folder, a video file (frames picked by :mod:`locnerf.sfm.video`), an RGB-D
+data set in the 7-Scenes layout whose pose files are not read, or a forward-facing LLFF capture
+(``images_<d>/``; its ``poses_bounds.npy`` is not read). An existing COLMAP sparse model and a
 nerfstudio ``transforms.json`` are posed already (:func:`capture_kind` tells them apart).
 """
 
@@ -16,6 +17,7 @@ import cv2
 
 from locnerf.data.detect import dataset_format
 from locnerf.data.image_files import IMAGE_SUFFIXES
+from locnerf.data.llff import image_folder
 from locnerf.data.seven_scenes import COLOUR_INTRINSICS, colour_path, depth_camera_of, frame_stems, sequence_folders
 from locnerf.errors import DatasetError
 from locnerf.render.camera import PinholeIntrinsics
@@ -34,7 +36,7 @@ class Capture:
     """Images to pose, in capture order.
 
     Attributes:
-        kind: ``images`` | ``video`` | ``rgbd``.
+        kind: ``images`` | ``video`` | ``rgbd`` | ``llff`` (forward-facing: the map gets NDC rays).
         source: the path the user named.
         image_root: folder the ``names`` are relative to (for a video, the folder its picked frames were written to).
         names: K image paths relative to ``image_root`` (COLMAP's image names).
@@ -65,7 +67,7 @@ def model_folder(path: Path) -> Path | None:
 
 
 def capture_kind(path: str | Path) -> str:
-    """``video`` | ``colmap`` | ``transforms`` | ``rgbd`` | ``images`` for a capture path.
+    """``video`` | ``colmap`` | ``transforms`` | ``rgbd`` | ``llff`` | ``images`` for a capture path.
 
     Raises:
         FileNotFoundError: naming the path when it does not exist.
@@ -80,8 +82,9 @@ def capture_kind(path: str | Path) -> str:
     if (path / "transforms.json").is_file():
         return "transforms"
     try:
-        if dataset_format(path) == "seven_scenes":
-            return "rgbd"
+        kind = {"seven_scenes": "rgbd", "llff": "llff"}.get(dataset_format(path))
+        if kind is not None:
+            return kind
     except DatasetError:
         pass
     return "images"
@@ -124,7 +127,9 @@ def _enough(capture: Capture) -> Capture:
     return capture
 
 
-def read_capture(path: str | Path, work_folder: Path, stride: int = 1, split: str = "train", video: VideoSelection | None = None) -> Capture:
+def read_capture(
+    path: str | Path, work_folder: Path, stride: int = 1, split: str = "train", video: VideoSelection | None = None, llff_downscale: int = 8
+) -> Capture:
     """The images (and depth images) of an image folder, a video or an RGB-D data set, to be posed by SfM.
 
     Args:
@@ -133,6 +138,7 @@ def read_capture(path: str | Path, work_folder: Path, stride: int = 1, split: st
         stride: keep every ``stride``-th image (image folders and RGB-D data; a video's frames are picked by :func:`select_video_frames`).
         split: RGB-D data: the split whose sequences are read (its pose files are not).
         video: how a video's frames are picked.
+        llff_downscale: an LLFF capture's images are those of ``images_<llff_downscale>/`` (``poses_bounds.npy`` is not read).
     Raises:
         FileNotFoundError / DatasetError: naming the path, for a path that holds no images, too few images,
             images of mixed sizes, or a video that cannot be opened.
@@ -169,11 +175,16 @@ def read_capture(path: str | Path, work_folder: Path, stride: int = 1, split: st
                 depth_camera=depth_camera_of(path, full_size) if depth_paths else None,
             )
         )
-    if kind != "images":
+    if kind not in ("images", "llff"):
         raise DatasetError(f"capture {path}: a {kind} capture is posed already; it is read as it is, not by read_capture")
-    names = sorted(p.name for p in path.iterdir() if p.is_file() and p.suffix in IMAGE_SUFFIXES)[::stride]
+    root = path
+    if kind == "llff":
+        root, resize = image_folder(path, llff_downscale)
+        if resize != 1:
+            raise DatasetError(f"LLFF capture {path}: no images_{llff_downscale}/ folder; expected the images at the map's size (--downscale)")
+    names = sorted(p.name for p in root.iterdir() if p.is_file() and p.suffix in IMAGE_SUFFIXES)[::stride]
     if not names:
-        raise FileNotFoundError(f"capture {path}: no images ({', '.join(IMAGE_SUFFIXES)}) in this folder, and no video, 7-Scenes data or COLMAP model")
-    _check_sizes(path, names)
+        raise FileNotFoundError(f"capture {root}: no images ({', '.join(IMAGE_SUFFIXES)}) in this folder, and no video, 7-Scenes data or COLMAP model")
+    _check_sizes(root, names)
     stamps = [_stamp(name) for name in names]
-    return _enough(Capture("images", path, path, names, stamps=None if None in stamps else stamps))
+    return _enough(Capture(kind, path, root, names, stamps=None if None in stamps else stamps))

@@ -9,8 +9,11 @@ An SfM reconstruction has no scale and no up direction. Scale sources (metres pe
 - ``user``: ``--scale`` directly, or ``--known-distance A B METRES`` between two frames' camera centres.
 
 Gravity: ``--up`` (a direction in the first image's camera frame, OpenCV axes: x right, y down, z
-forward; a level camera has up = 0 -1 0), the trajectory's +z, or, without either, the mean up axis
-of the cameras (``camera_mean``: cameras held about level, as hand-held and robot cameras are).
+forward; a level camera has up = 0 -1 0), the trajectory's +z, or, without either, the direction
+perpendicular to every camera's x axis (``level_cameras``: cameras held without roll, as hand-held and
+robot cameras are, have horizontal x axes whatever their pitch; OpenSfM's upright prior); when the cameras
+barely turn (their x axes all about parallel) the mean of their up axes in the plane perpendicular to
+the common x axis (``camera_mean``, which assumes level pitch too).
 
 Sources that disagree by more than ``SCALE_TOLERANCE`` are refused; depth ratios of single images that
 disagree with the median by more than it are named in a warning, and refused when they are many
@@ -156,6 +159,32 @@ def agreed_scale(estimates: list[ScaleEstimate]) -> ScaleEstimate | None:
                 "the trajectory, or give only the source you trust"
             )
     return chosen
+
+
+MIN_TURN = 0.01
+"""Least second eigenvalue of the mean outer product of the cameras' x axes (about a 6° spread of headings)
+for the level-camera up axis; below it the headings do not fix it."""
+
+
+def level_camera_up(T_world_cam_cv: np.ndarray) -> tuple[np.ndarray, str]:
+    """(3,) unit up direction of cameras held without roll, and its source (``level_cameras`` | ``camera_mean``).
+
+    The unit vector least aligned with every camera's x axis (the smallest eigenvector of their mean outer product),
+    signed to agree with the cameras' up axes (-y, OpenCV axes); when the x axes span no plane (cameras that do not
+    turn), the cameras' mean up axis with its component along the common x axis removed.
+
+    Args:
+        T_world_cam_cv: (N, 4, 4) camera-to-world poses, OpenCV axes.
+    """
+    x_axes = T_world_cam_cv[:, :3, 0]
+    values, vectors = np.linalg.eigh(x_axes.T @ x_axes / len(x_axes))
+    mean_up = mean_camera_up(T_world_cam_cv)
+    if values[1] >= MIN_TURN:
+        up = vectors[:, 0]
+        return up * np.sign(up @ mean_up or 1.0), "level_cameras"
+    common = vectors[:, 2]
+    up = mean_up - (mean_up @ common) * common
+    return up / max(np.linalg.norm(up), 1e-12), "camera_mean"
 
 
 def mean_camera_up(T_world_cam_cv: np.ndarray) -> np.ndarray:

@@ -31,12 +31,14 @@ from locnerf.geometry.frames import opencv_to_opengl, opengl_to_opencv
 from locnerf.geometry.similarity import Similarity
 from locnerf.sfm.alignment import FRAMES_KEY
 from locnerf.sfm.capture import Capture, capture_kind, model_folder, read_capture
+from locnerf.sfm.depth_camera import capture_depth_views, with_calibrated_depth_camera
+from locnerf.sfm.forward_facing import forward_facing_frame, image_depth_bounds
 from locnerf.sfm.metric import (
     ScaleEstimate,
     agreed_scale,
     depth_ratios,
     fit_to_trajectory,
-    mean_camera_up,
+    level_camera_up,
     rotation_to_z_up,
     scale_from_depth,
     scale_from_known_distance,
@@ -48,6 +50,7 @@ from locnerf.sfm.video import VideoSelection
 logger = logging.getLogger(__name__)
 
 MAP_UP = (0.0, 0.0, 1.0)
+DEFAULT_LLFF_DOWNSCALE = 8
 
 
 class MetricOptions(BaseModel):
@@ -121,8 +124,8 @@ def metric_frame(
             up_sfm = poses_cv[names[0]][:3, :3] @ (up / np.linalg.norm(up))
             gravity = {"source": "user", "up_camera": list(options.up), "frame": names[0]}
         else:
-            up_sfm = mean_camera_up(np.stack(list(poses_cv.values())))
-            gravity = {"source": "camera_mean"}
+            up_sfm, source = level_camera_up(np.stack(list(poses_cv.values())))
+            gravity = {"source": source}
         gravity["up_sfm"] = up_sfm.tolist()
         rotation = rotation_to_z_up(up_sfm)
         translation = -scale * rotation @ centres.mean(0)
@@ -168,14 +171,18 @@ def posed_capture(
     stride: int = 1,
     split: str = "train",
     video: VideoSelection | None = None,
+    calibrate_depth_camera: bool = False,
 ):
     """Posed images of a capture in the map frame, and map metadata (``sfm`` and ``metric_frame``).
 
     Args:
         path: image folder, video, RGB-D data set (pose files not read), COLMAP model folder or transforms.json.
         cache_folder: where SfM results (and a video's frames) are kept between runs.
-        downscale: image size divisor of the map (default 4 for RGB-D data, else 1).
+        downscale: image size divisor of the map (default 4 for RGB-D data, else 1); an LLFF capture's images are
+            ``images_<downscale>/``'s (default 8), and its map is forward-facing (NDC rays, :mod:`locnerf.sfm.forward_facing`).
         stride, split: which images of an image folder or RGB-D data set are posed.
+        calibrate_depth_camera: place an RGB-D capture's depth camera by :mod:`locnerf.sfm.depth_camera` (else at
+            the colour camera; on the kitchen the calibration made single-image localization worse: docs/RESULTS.md).
     Returns:
         (PosedImages, metadata dict).
     """
@@ -194,7 +201,7 @@ def posed_capture(
         capture = Capture("images", path, root, names)
         sfm_record = {"kind": "colmap", "model": str(folder)}
     else:
-        capture = read_capture(path, cache_folder, stride=stride, split=split, video=video)
+        capture = read_capture(path, cache_folder, stride=stride, split=split, video=video, llff_downscale=downscale or DEFAULT_LLFF_DOWNSCALE)
         result = run_sfm(capture, cache_folder / "sfm", sfm)
         reconstruction = result.reconstruction
         sfm_record = {
@@ -213,8 +220,13 @@ def posed_capture(
     stamps = dict(zip(capture.names, capture.stamps)) if capture.stamps is not None else None
     depth_obs = depth_observations(reconstruction, capture) if options.depth else {}
     to_map, record = metric_frame(poses_cv, stamps, depth_obs, options)
-    scale_down = downscale or (4 if capture.depth_paths is not None else 1)
+    scale_down = 1 if capture.kind == "llff" else downscale or (4 if capture.depth_paths is not None else 1)
     images = posed_images_from_reconstruction(reconstruction, capture, to_map, MAP_UP, scale_down, use_depth=record["metric"])
+    if capture.kind == "llff":
+        images, sfm_record["forward_facing"] = forward_facing_frame(images, image_depth_bounds(reconstruction, list(poses_cv), to_map.scale))
+    depth_camera = {}
+    if calibrate_depth_camera:
+        images, depth_camera = with_calibrated_depth_camera(images, capture_depth_views(reconstruction, capture, to_map.scale))
     sfm_record[FRAMES_KEY] = images.names
     sfm_record[CAMERA_KEY] = lens_record(*colmap_camera(next(iter(reconstruction.cameras.values()))))
-    return images, {"sfm": sfm_record, METRIC_FRAME_KEY: record}
+    return images, {"sfm": sfm_record, METRIC_FRAME_KEY: record, **depth_camera}

@@ -15,18 +15,22 @@ import numpy as np
 import pytest
 import torch
 
+from locnerf.data.colour_camera import colour_camera_of
+from locnerf.data.llff import NDC_CUBE, read_llff
 from locnerf.data.map_lens import map_lens
 from locnerf.errors import ConfigError, DatasetError, LocnerfInputError
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.map_file import load_map, save_map
 from locnerf.field.map_info import METRIC_FRAME_KEY, metric_frame_problem
+from locnerf.geometry import pose_inverse
 from locnerf.geometry.similarity import fit_similarity_to_poses
-from locnerf.sfm.alignment import alignment_errors
+from locnerf.sfm.alignment import aligned_normalization, alignment_errors
 from locnerf.sfm.capture import read_capture
+from locnerf.sfm.depth_camera import METADATA_RECORD as DEPTH_RECORD
 from locnerf.sfm.pipeline import MetricOptions, posed_capture
 from locnerf.train import BuildConfig, build_map
 from locnerf_cli.main import main
-from tests.sfm.world_capture import FRAMES, write_world_capture
+from tests.sfm.world_capture import CAMERA, FRAMES, write_world_capture
 
 pytest.importorskip("pycolmap")
 
@@ -47,18 +51,21 @@ def _scored(images, truth: torch.Tensor) -> dict:
 
 def test_rgbd_capture_to_a_metric_map_and_its_cache(capture, tmp_path):
     folder, cache, truth = capture
-    images, metadata = posed_capture(folder, cache)
+    images, metadata = posed_capture(folder, cache, calibrate_depth_camera=True)
     assert metadata["sfm"]["posed"] == FRAMES and not metadata["sfm"]["unregistered"] and not metadata["sfm"]["cached"]
     frame = metadata[METRIC_FRAME_KEY]
-    assert frame["metric"] and frame["scale"]["source"] == "depth" and frame["gravity"]["source"] == "camera_mean"
+    assert frame["metric"] and frame["scale"]["source"] == "depth" and frame["gravity"]["source"] == "level_cameras"
     summary = _scored(images, truth)
     # metric from depth: the fitted similarity to the true (metric) poses has scale 1 within 1 %
     assert abs(summary["scale_map_to_truth"] - 1.0) < 0.01
     assert summary["translation_max_m"] < 0.01 and summary["rotation_max_deg"] < 0.5
-    # up from the cameras' mean: the map's +z is the world's up (+y) within 10 degrees (the cameras pitch by -9..-1 degrees)
+    # up from level cameras (no roll; they pitch by -9..-1 degrees and turn +-15): the map's +z is the world's up (+y) within 1 degree
     map_up_in_world = fit_similarity_to_poses(images.T_world_cam.double().numpy(), truth.numpy()[images.indices]).rotation @ np.array([0.0, 0.0, 1.0])
-    assert map_up_in_world[1] > np.cos(np.radians(10.0))
-    assert images.depths is not None and images.T_cam_depth is not None
+    assert map_up_in_world[1] > np.cos(np.radians(1.0))
+    # the depth images were rendered from the colour camera: the calibrated depth camera sits there (within 3 mm, 0.2 degrees)
+    assert images.depths is not None and float(images.T_cam_depth[:3, 3].norm()) < 0.003
+    assert metadata[DEPTH_RECORD]["rotation_deg"] < 0.2 and metadata[DEPTH_RECORD]["residual_after_m"] < 0.003
+    torch.testing.assert_close(pose_inverse(colour_camera_of(metadata)), images.T_cam_depth)
 
     radiance_map = build_map(images, TINY_BUILD)
     radiance_map.metadata.update(metadata)
@@ -153,3 +160,30 @@ def test_an_existing_colmap_model_is_taken_as_it_is(capture, tmp_path):
     assert again_metadata["sfm"]["kind"] == "colmap" and again_metadata[METRIC_FRAME_KEY]["scale"]["source"] == "user"
     assert len(again) == FRAMES and not (tmp_path / "unused").exists()
     torch.testing.assert_close(again.T_world_cam, images.T_world_cam, atol=1e-9, rtol=0)
+
+
+def test_an_llff_folder_alone_makes_a_forward_facing_map_that_aligns_to_its_poses(tmp_path):
+    """An LLFF folder (images_8/, and a poses_bounds.npy of the true poses that the build does not read): the SfM poses go
+    into nerf-pytorch's NDC frame with bounds from the SfM points' depths (the smallest near bound is 1/0.75 map units);
+    after one similarity fitted on the cameras, the LLFF reader's frames land on the map's cameras (locnerf eval's path)."""
+    folder = tmp_path / "llff"
+    truth = write_world_capture(folder / "images_8", depth=False)
+    gl = truth.numpy()
+    raw = np.stack(
+        (-gl[:, :3, 1], gl[:, :3, 0], gl[:, :3, 2], gl[:, :3, 3], np.tile([[180.0 * 8], [240.0 * 8], [CAMERA.fx * 8]], (len(gl), 1, 1))[..., 0]), axis=2
+    )
+    np.save(folder / "poses_bounds.npy", np.concatenate((raw.reshape(len(gl), 15), np.tile([0.5, 12.0], (len(gl), 1))), axis=1))
+    metres = float(torch.linalg.vector_norm(truth[0, :3, 3] - truth[FRAMES - 1, :3, 3]))
+    images, metadata = posed_capture(folder, tmp_path / "cache", MetricOptions(known_distance=("image000", str(FRAMES - 1), metres)))
+    assert metadata["sfm"]["kind"] == "llff" and metadata["sfm"]["forward_facing"]["percentiles"] == [0.1, 99.9]
+    assert images.normalization.ndc and torch.equal(images.scene_bounds, NDC_CUBE) and images.depths is None
+    assert images.normalization.near == pytest.approx(0.9 / 0.75)
+    # the SfM points' nearest depths are true surface depths of this room (metres, the known distance's scale)
+    assert 0.3 < metadata["sfm"]["forward_facing"]["near_min"] < metadata["sfm"]["forward_facing"]["far_max"] < 15.0
+    reader = read_llff(folder, downscale=8)
+    similarity, report = alignment_errors(images.T_world_cam.double().numpy(), reader.T_world_cam.double().numpy())
+    assert report["summary"]["rotation_max_deg"] < 0.5 and report["summary"]["translation_max_m"] < 0.01 * reader.normalization.scale
+    in_map = reader.in_frame(aligned_normalization(images.normalization, similarity, reader.normalization))
+    assert in_map.normalization.ndc and in_map.near == images.normalization.near
+    gap = np.linalg.norm(in_map.T_world_cam[:, :3, 3].numpy() - images.T_world_cam[:, :3, 3].numpy(), axis=1)
+    assert gap.max() == pytest.approx(report["summary"]["translation_max_m"] / similarity.scale, rel=1e-6)  # the fit's errors, in map units

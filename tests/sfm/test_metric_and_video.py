@@ -145,3 +145,73 @@ def test_ground_truth_frames_are_read_into_an_aligned_maps_frame():
     assert in_map.normalization == aligned and truth_frames.in_frame(MapNormalization()) is truth_frames
     with pytest.raises(DatasetError, match="NDC"):
         truth_frames.in_frame(aligned.model_copy(update={"ndc": True}))
+
+
+def test_alignment_through_a_readers_own_normalization_and_between_ndc_frames():
+    """A ground truth read in a normalised frame (LLFF's: scaled and recentred, NDC rays) and a forward-facing SfM map:
+    the aligned normalization composes the reader's with the fitted similarity, NDC frames move into each other
+    (bounds: the target's), views move with their start offsets, and errors are scored in the truth's units."""
+    from locnerf.data.posed_images import frame_change
+    from locnerf.eval.real_data import View, in_truth_units, view_in_frame
+    from locnerf.eval.single_image import TrialResult
+
+    generator = np.random.default_rng(11)
+    map_to_truth = _random_similarity(generator)
+    reader = MapNormalization(T_map_dataset=_random_similarity(generator).poses(np.eye(4)[None])[0].tolist(), scale=0.3, ndc=True, near=1.2, far=9.0)
+    map_frame = MapNormalization(ndc=True, near=0.9, far=5.0)
+    map_poses = np.stack([make_pose(so3_exp(torch.from_numpy(generator.normal(size=3))), torch.from_numpy(generator.normal(size=3))).numpy() for _ in range(3)])
+    truth = torch.from_numpy(map_to_truth.poses(map_poses))
+    aligned = aligned_normalization(map_frame, map_to_truth, reader)
+    assert (aligned.ndc, aligned.near, aligned.far) == (True, 0.9, 5.0)
+    move = frame_change(reader, aligned)
+    np.testing.assert_allclose(move(truth).numpy(), map_poses, atol=1e-9)
+    frames = PosedImages(
+        images=torch.zeros(3, 4, 4, 3),
+        T_world_cam=truth,
+        intrinsics=PinholeIntrinsics.centred(4.0, 4.0, 4, 4),
+        near=1.2,
+        far=9.0,
+        normalization=reader,
+        names=["a", "b", "c"],
+        scene_bounds=torch.tensor([[-1.0] * 3, [1.0] * 3], dtype=torch.float64),
+    )
+    in_map = frames.in_frame(aligned)
+    np.testing.assert_allclose(in_map.T_world_cam.numpy(), map_poses, atol=1e-9)
+    assert (in_map.near, in_map.far) == (0.9, 5.0) and torch.equal(in_map.scene_bounds, frames.scene_bounds)
+    offset = torch.tensor([0.05, -0.02, 0.01], dtype=torch.float64)
+    view = view_in_frame(View(7, "a", truth[0], frames.images[0], False, offset), move)
+    np.testing.assert_allclose(view.truth.numpy(), map_poses[0], atol=1e-9)
+    expected = map_to_truth.rotation.T @ offset.numpy() / map_to_truth.scale  # a displacement: rotated and scaled, not shifted
+    np.testing.assert_allclose(view.offset.numpy(), expected, atol=1e-9)
+    units = aligned.scale / reader.scale
+    assert units == pytest.approx(1.0 / map_to_truth.scale)
+    scored = in_truth_units(TrialResult(0.2, 1.0, 0.0, 0, history_translation=[0.4, 0.2]), units)
+    assert scored.translation_error == pytest.approx(0.2 * map_to_truth.scale) and scored.history_translation[0] == pytest.approx(0.4 * map_to_truth.scale)
+
+
+def test_up_from_level_cameras_whatever_their_pitch():
+    """Cameras without roll, pitched 30 degrees down, turning +-20 degrees: the up axis perpendicular to their x axes is
+    the true one (the mean of their up axes is 30 degrees off); cameras that do not turn fall back to that mean, in the
+    plane perpendicular to their common x axis."""
+    from locnerf.sfm.metric import level_camera_up
+
+    world_up = np.array([0.2, -0.3, 0.93])
+    world_up /= np.linalg.norm(world_up)
+    to_world = rotation_to_z_up(world_up).T  # a frame whose +z is world_up
+
+    def cameras(yaws_deg):
+        poses = []
+        for yaw in np.radians(yaws_deg):
+            # OpenCV camera: x right (horizontal), y down, z forward; level camera pitched 30 degrees down
+            forward = np.array([np.cos(yaw), np.sin(yaw), 0.0]) * np.cos(np.radians(30)) + np.array([0, 0, -np.sin(np.radians(30))])
+            right = np.cross(forward, [0.0, 0.0, 1.0])
+            right /= np.linalg.norm(right)
+            pose = np.eye(4)
+            pose[:3, :3] = to_world @ np.stack((right, np.cross(forward, right), forward), axis=1)
+            poses.append(pose)
+        return np.stack(poses)
+
+    up, source = level_camera_up(cameras(np.linspace(-20, 20, 9)))
+    assert source == "level_cameras" and np.degrees(np.arccos(np.clip(up @ world_up, -1, 1))) < 1e-4
+    still, source = level_camera_up(cameras(np.zeros(5)))
+    assert source == "camera_mean" and np.degrees(np.arccos(np.clip(still @ world_up, -1, 1))) == pytest.approx(30.0, abs=1e-6)
