@@ -16,6 +16,7 @@ import logging
 import math
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -201,7 +202,9 @@ def capture_depth_views(reconstruction, capture: Capture, scale: float, config: 
     chosen = [posed[round(i)] for i in torch.linspace(0, len(posed) - 1, min(config.max_views, len(posed))).tolist()] if posed else []
     views = []
     for image in chosen:
-        world = torch.tensor([reconstruction.points3D[p.point3D_id].xyz for p in image.points2D if p.has_point3D()], dtype=torch.float64).reshape(-1, 3)
+        world = torch.from_numpy(np.array([reconstruction.points3D[p.point3D_id].xyz for p in image.points2D if p.has_point3D()], dtype=np.float64)).reshape(
+            -1, 3
+        )
         pose = torch.from_numpy(image.cam_from_world().matrix())
         local = (world @ pose[:, :3].T + pose[:, 3]) * scale * torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64)  # OpenCV -> OpenGL axes
         depth = torch.from_numpy(read_depth(depth_of[image.name], config.depth_stride))
