@@ -108,6 +108,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ceiling.add_argument("--candidates", type=int, default=CeilingConfig().candidates, help="training frames tried per view (nearest first)")
     ceiling.add_argument("--device", default="auto")
     ceiling.add_argument("--json", action="store_true", help="print JSON (per view and summary)")
+    add_poses_argument(ceiling)
     ceiling.set_defaults(func=run_ceiling)
 
     layer = commands.add_parser(
@@ -267,8 +268,8 @@ def run_ceiling(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--candidates {args.candidates}: expected >= 1")
     device = resolve_device(args.device)
     radiance_map = load_map(args.map, device)
-    views = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split, args.stride)
-    training = _split_on_map_camera(radiance_map, args.data, args.downscale, args.train_split)
+    views = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split, args.stride, args.poses)
+    training = _split_on_map_camera(radiance_map, args.data, args.downscale, args.train_split, poses=args.poses)
     report = reprojection_ceiling(views, training, radiance_map.render_rays, CeilingConfig(candidates=args.candidates))
     if args.json:
         print(json.dumps(report))

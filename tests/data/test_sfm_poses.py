@@ -181,7 +181,8 @@ def test_the_replay_source_streams_the_sfm_ground_truth(tmp_path: Path) -> None:
 
 def test_map_build_and_eval_with_sfm_poses(tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture) -> None:
     """``map build --poses sfm`` records its pose source and scores the test split against the SfM poses;
-    ``map eval`` of that map with the default dSLAM poses is refused, with ``--poses sfm`` it scores."""
+    ``map eval`` of that map with the default dSLAM poses is refused, with ``--poses sfm`` it scores, and so does
+    ``map ceiling``."""
     root = _full_size_scene(tmp_path / "scene")
     out = tmp_path / "sfm.locmap"
     build = ["map", "build", str(root), "--out", str(out), "--poses", "sfm", "--downscale", "32", "--steps", "3", "--voxels", "512", "--device", "cpu"]
@@ -195,3 +196,6 @@ def test_map_build_and_eval_with_sfm_poses(tmp_path: Path, capsys: pytest.Captur
     assert "--poses dslam: the map was built from sfm poses" in caplog.text
     assert main(["map", "eval", str(out), str(root), "--downscale", "32", "--device", "cpu", "--json", "--poses", "sfm"]) == 0
     assert json.loads(capsys.readouterr().out)["views"] == 3
+    ceiling = ["map", "ceiling", str(out), "--data", str(root), "--stride", "1", "--downscale", "32", "--candidates", "1", "--device", "cpu", "--json"]
+    assert main([*ceiling, "--poses", "sfm"]) == 0  # the test views posed by the SfM poses, as the map
+    assert json.loads(capsys.readouterr().out)["summary"]["views"] == 3

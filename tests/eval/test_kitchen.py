@@ -116,9 +116,10 @@ def test_map_add_surface_distance_writes_a_layer_from_the_training_depth(tiny_ki
     assert load_map(tiny_kitchen_map).surface_distance is not None  # built with one; not rewritten
 
 
-def test_map_ceiling_reports_each_view_and_the_means(tiny_kitchen_map: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_map_ceiling_reports_each_view_and_the_means(tiny_kitchen_map: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture) -> None:
     """``locnerf map ceiling`` on two test frames against the tiny map's 600 training frames (5 nearest each):
-    every figure of a view present and finite where it has points, coverage a fraction, means over the views."""
+    every figure of a view present and finite where it has points, coverage a fraction, means over the views;
+    ``--poses sfm`` on this dSLAM-posed map refused."""
     argv = ["map", "ceiling", str(tiny_kitchen_map), "--data", str(KITCHEN), "--split", "test", "--stride", "200", "--downscale", DOWNSCALE]
     report = run_cli(argv + ["--candidates", "5", "--device", "cpu", "--json"], capsys)
     assert [row["name"] for row in report["views"]] == ["seq-02/frame-000600", "seq-02/frame-000800"]
@@ -126,6 +127,9 @@ def test_map_ceiling_reports_each_view_and_the_means(tiny_kitchen_map: Path, cap
         assert 0.0 < row["coverage"] <= 1.0 and math.isfinite(row["ceiling_psnr"]) and math.isfinite(row["map_psnr"]), row
     summary = report["summary"]
     assert summary["views"] == 2 and summary["coverage"] == pytest.approx(sum(row["coverage"] for row in report["views"]) / 2)
+    with caplog.at_level(logging.ERROR):  # a map of the dSLAM poses is not measured in the SfM poses' world frame
+        assert main(argv + ["--device", "cpu", "--json", "--poses", "sfm"]) == 2
+    assert "--poses sfm: the map was built from dslam poses" in caplog.text
 
 
 @pytest.mark.parametrize(
