@@ -3,7 +3,11 @@
 LLFF's ``imgs2poses`` (Mildenhall et al. 2019) writes ``poses_bounds.npy`` from a COLMAP model: each image's
 near and far bounds are the 0.1th and 99.9th percentiles of the depths of the 3D points it observes.
 nerf-pytorch then scales and recentres the poses (:func:`locnerf.data.llff.normalize_forward_facing`) and
-warps rays to normalised device coordinates. :func:`forward_facing_frame` does the same from the
+warps rays to normalised device coordinates. LLFF's percentiles trim outliers among the thousands of points a
+full-resolution COLMAP run gives each image; a capture posed at low resolution gives a few hundred, where the
+0.1th percentile is the nearest point, and a point triangulated from two views only can sit far in front of
+the scene (fern at ÷8: 0.63 of the true near depth), which would scale the whole map frame by its error. Only
+points tracked in at least ``MIN_TRACK_LENGTH`` images bound an image. :func:`forward_facing_frame` does the same from the
 reconstruction, so an LLFF folder built with ``--sfm`` gets the map its ``poses_bounds.npy`` would give,
 without reading that file; the map's "data-set world" is then the SfM map frame (metric when a scale source
 was given).
@@ -26,12 +30,15 @@ logger = logging.getLogger(__name__)
 
 BOUND_PERCENTILES = (0.1, 99.9)
 """LLFF ``imgs2poses``' percentiles of an image's point depths: its near and far bounds."""
+MIN_TRACK_LENGTH = 3
+"""Fewest images a 3D point is seen in for it to bound an image's depths (two-view points are the loosely triangulated ones)."""
 MIN_POINTS = 10
-"""Fewest observed 3D points that give an image its bounds."""
+"""Fewest such 3D points that give an image its bounds."""
 
 
 def image_depth_bounds(reconstruction, names: list[str], scale: float = 1.0) -> np.ndarray:
-    """(K, 2) float64 near and far bounds of the images ``names`` (in that order): percentiles of the depths of the 3D points each observes.
+    """(K, 2) float64 near and far bounds of the images ``names`` (in that order): percentiles of the depths of the 3D points each
+    observes that are tracked in at least ``MIN_TRACK_LENGTH`` images.
 
     Args:
         reconstruction: pycolmap.Reconstruction holding the posed images ``names``.
@@ -43,7 +50,8 @@ def image_depth_bounds(reconstruction, names: list[str], scale: float = 1.0) -> 
     bounds, sparse = [], []
     for name in names:
         image = by_name[name]
-        world = np.array([reconstruction.points3D[p.point3D_id].xyz for p in image.points2D if p.has_point3D()]).reshape(-1, 3)
+        points = [reconstruction.points3D[p.point3D_id] for p in image.points2D if p.has_point3D()]
+        world = np.array([point.xyz for point in points if point.track.length() >= MIN_TRACK_LENGTH]).reshape(-1, 3)
         pose = image.cam_from_world().matrix()
         depths = world @ pose[:, :3].T[:, 2] + pose[2, 3]
         depths = depths[depths > 0]
@@ -52,7 +60,10 @@ def image_depth_bounds(reconstruction, names: list[str], scale: float = 1.0) -> 
             continue
         bounds.append(np.percentile(depths, BOUND_PERCENTILES))
     if sparse:
-        raise DatasetError(f"forward-facing capture: images observing fewer than {MIN_POINTS} 3D points cannot be bounded: {', '.join(sparse)}")
+        raise DatasetError(
+            f"forward-facing capture: images observing fewer than {MIN_POINTS} 3D points seen in >= {MIN_TRACK_LENGTH} images cannot be bounded: "
+            f"{', '.join(sparse)}"
+        )
     return np.asarray(bounds, dtype=np.float64) * scale
 
 
@@ -86,6 +97,7 @@ def forward_facing_frame(images: PosedImages, bounds: np.ndarray) -> tuple[Posed
     record = {
         "bounds": "depth percentiles of the SfM points each image observes (LLFF imgs2poses)",
         "percentiles": list(BOUND_PERCENTILES),
+        "min_track_length": MIN_TRACK_LENGTH,
         "near_min": float(bounds[:, 0].min()),
         "far_max": float(bounds[:, 1].max()),
     }
