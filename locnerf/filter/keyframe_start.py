@@ -54,6 +54,12 @@ class KeyframeStartConfig(BaseModel):
     keep_tilt: bool = Field(
         False, description="Re-drawn particles keep the roll and pitch of the particles they replace (gravity known); position and heading from the draw."
     )
+    refine_updates: int = Field(
+        0,
+        ge=0,
+        description="With recovery enabled: after the seeding, this many refining updates re-draw recovery.refine_fraction of the particles "
+        "from the cloud's own Gaussian (recovery.refine_*), as after a relocalization (0: none).",
+    )
     lattice: ViewLatticeConfig | None = Field(
         None, description="Keyframes rendered on a lattice over the room instead of the map's reference poses (for recovery too)."
     )

@@ -244,9 +244,9 @@ class Localizer:
         if candidates is None:
             return 0
         particles = self._require_particles()
-        share = self.config.keyframe_start.share
         particles.poses = seed_start(particles.poses, candidates, self.config.keyframe_start, self.config.recovery, self.generator, self._start_up)
-        seeded = round(share * particles.count)
+        self._recovery.refine(self.config.keyframe_start.refine_updates if self.config.recovery.enabled else 0)  # recovery's refine_* draws
+        seeded = round(self.config.keyframe_start.share * particles.count)
         logger.info("keyframe start: %d of %d particles re-drawn around %d matching keyframes", seeded, particles.count, len(candidates.poses))
         return seeded
 

@@ -206,6 +206,13 @@ class RecoveryMonitor:
         self.low = 0
         self.settling = []
 
+    def refine(self, updates: int) -> None:
+        """Make the next ``updates`` updates refining ones, as after a detection (not counted as one):
+        for a cloud just seeded around candidate views (:mod:`locnerf.filter.keyframe_start`)."""
+        if updates < 0:
+            raise ValueError(f"refining updates={updates}: expected a count >= 0")
+        self.refining = updates
+
     def observe(self, log_mean_likelihood: float, kind: object = None) -> InjectionPlan:
         """Feed one update's log mean likelihood of ``kind`` (any hashable label; a change forgets the
         averages); return what to inject after its resampling.

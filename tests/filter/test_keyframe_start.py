@@ -9,7 +9,7 @@ import torch
 
 from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_around_keyframes
-from locnerf.filter.recovery import KeyframeCandidates, RecoveryConfig
+from locnerf.filter.recovery import KeyframeCandidates, RecoveryConfig, RecoveryMonitor
 from locnerf.geometry import make_pose, rotation_error_deg, se3_log, so3_exp, translation_error
 from locnerf.maps.keyframes import build_keyframe_index
 from locnerf.sim.world import ProceduralWorld
@@ -114,3 +114,32 @@ def test_only_a_global_start_with_keyframes_and_a_share_is_seeded(world, generat
     assert not LocalizerConfig().uses_keyframes()
     assert LocalizerConfig(keyframe_start=KeyframeStartConfig(share=0.5)).uses_keyframes()
     assert LocalizerConfig(recovery=RecoveryConfig(enabled=True, keyframe_share=0.5)).uses_keyframes()
+
+
+@pytest.mark.parametrize("refine_updates", [0, 2])
+def test_a_seeded_start_refines_for_refine_updates_without_counting_a_recovery(world, generator, refine_updates):
+    """With recovery enabled and ``refine_updates`` = 2 the two updates after the seeding re-draw
+    ``refine_fraction`` of the resampled particles from the cloud's Gaussian (recovery's refining
+    draws), not counted as recoveries; the third is tested as usual (equal likelihoods: no drop)."""
+    poses = torch.stack([world.sample_camera_pose(generator) for _ in range(8)])
+    keyframes = build_keyframe_index(world.render_rays, poses, world.default_intrinsics)
+    low, high = world.camera_bounds().double().tolist()
+    region = SearchRegion(low=tuple(low), high=tuple(high), up=world.normalization.up)
+    start = KeyframeStartConfig(share=0.8, refine_updates=refine_updates)
+    config = LocalizerConfig(particles=200, keyframe_start=start, recovery=RecoveryConfig(enabled=True, refine_fraction=0.25))
+    localizer = Localizer(config, generator, dtype=torch.float64, region=region, keyframes=keyframes)
+    localizer.initialize_uniform(region)
+    assert localizer.seed_from_image(world.render_image(poses[0]), world.default_intrinsics) == 160
+    injected = []
+    for _ in range(3):
+        snap = localizer.snapshot()
+        injected.append(localizer.merge(snap.epoch, snap.generation, snap.ids, torch.zeros(len(snap.ids), dtype=torch.float64)).injected)
+    assert injected == ([50, 50, 0] if refine_updates else [0, 0, 0])  # KLD off: 200 particles, a quarter re-drawn
+    assert localizer.counters["recoveries"] == 0
+
+
+def test_a_negative_refining_count_is_refused():
+    with pytest.raises(ValueError, match="refining updates=-1"):
+        RecoveryMonitor(RecoveryConfig()).refine(-1)
+    with pytest.raises(ValueError, match="refine_updates"):
+        KeyframeStartConfig(refine_updates=-1)
