@@ -210,6 +210,11 @@ def run(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--kidnap-at with the bag {args.sequence}: a bag's camera moved as recorded, it cannot be kidnapped")
     if args.kidnap_jump is not None and args.kidnap_at is None:
         raise LocnerfInputError(f"--kidnap-jump {args.kidnap_jump[0]} {args.kidnap_jump[1]} without --kidnap-at: expected the time of the kidnapping too")
+    if args.kidnap_at is not None and args.odometry not in ("synthetic", "rgbd"):
+        raise LocnerfInputError(
+            f"--kidnap-at with --odometry {args.odometry}: a recorded trajectory follows the recorded camera and cannot see the simulated jump;"
+            " expected --odometry synthetic, or rgbd (computed from the frames the kidnapped camera delivers)"
+        )
     args.kidnap_shift = None
     if args.live:
         if args.background != "white" or args.init != "global" or args.no_recovery or args.plots:

@@ -30,7 +30,7 @@ from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting
 from locnerf.odometry.sequence import SYNTHETIC, OdometrySourceConfig, sequence_track
 from locnerf.odometry.tracks import OdometryTrack
 from locnerf.sim.paths import CameraPath, SequencePath
-from locnerf.sim.scenario import ScenarioConfig, TrackingScenario, run_stamps
+from locnerf.sim.scenario import ScenarioConfig, TrackingScenario, run_path_times, run_stamps
 
 REPORT = "tracking.json"
 
@@ -94,7 +94,8 @@ def offline_track(args: argparse.Namespace, path: CameraPath, scenario_config: S
     config = odometry_source(args)
     if config.source == SYNTHETIC or not isinstance(path, SequencePath):
         return None
-    return sequence_track(config, path, run_stamps(path, scenario_config), args.sequence, args.split, colour_camera, args.passes)
+    stamps, path_times = run_stamps(path, scenario_config), run_path_times(path, scenario_config)
+    return sequence_track(config, path, stamps, args.sequence, args.split, colour_camera, args.passes, path_times)
 
 
 def odometry_label(args: argparse.Namespace, live: bool = False) -> str:

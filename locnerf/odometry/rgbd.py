@@ -53,6 +53,13 @@ class RgbdOdometryConfig(BaseModel):
     min_valid_depth: float = Field(0.1, ge=0, le=1, description="Least fraction of valid depth pixels of a frame; fewer: a gap (no depth).")
     max_speed: float = Field(2.0, gt=0, description="Fastest plausible camera speed, m/s; a faster step is a gap.")
     max_angular_speed_deg: float = Field(270.0, gt=0, description="Fastest plausible turn, degrees per second; a faster step is a gap.")
+    resume_after: int = Field(
+        3,
+        ge=1,
+        description="After this many frames in a row that do not match the last tracked one (failed, non-finite or implausible), that"
+        " frame becomes the new reference, at the last pose: tracking resumes from it, the motion across the gap unknown (the filter"
+        " bridges it by widening its prediction noise with time), as after a kidnapping or a long blur.",
+    )
 
 
 @dataclass
@@ -62,6 +69,7 @@ class OdometryCounters:
     frames: int = 0
     poses: int = 0
     gaps: Counter[str] = field(default_factory=Counter)
+    resumed: int = 0
     seconds: float = 0.0
 
     def as_dict(self) -> dict[str, object]:
@@ -71,6 +79,7 @@ class OdometryCounters:
             "poses": self.poses,
             "gaps": sum(self.gaps.values()),
             "gap_reasons": dict(self.gaps),
+            "resumed": self.resumed,
             "ms_per_frame": 1000.0 * self.seconds / computed,
         }
 
@@ -110,6 +119,7 @@ class RgbdOdometry:
         self._odometry = cv2.Odometry(_TYPES[config.kind], settings, algorithm)
         self._reference: tuple[float, np.ndarray, np.ndarray] | None = None  # stamp, grey, depth of the last tracked frame
         self._pose_cv = np.eye(4)  # T_odom_cam of the last tracked frame, OpenCV axes
+        self._unmatched = 0  # frames in a row that did not match the reference
         self.counters = OdometryCounters()
 
     def step(self, stamp: float, rgb: np.ndarray, depth_m: np.ndarray) -> torch.Tensor | None:
@@ -127,7 +137,7 @@ class RgbdOdometry:
         depth = np.ascontiguousarray(depth_m, dtype=np.float32)
         valid = float(np.count_nonzero((depth > self.config.min_depth) & (depth < self.config.max_depth))) / depth.size
         if valid < self.config.min_valid_depth:
-            return self._gap("no_depth", stamp, f"{valid:.0%} valid depth")
+            return self._gap("no_depth", f"{valid:.0%} valid depth", stamp)
         if self._reference is None:
             self._reference = (stamp, grey, depth)
             self.counters.poses += 1
@@ -139,24 +149,37 @@ class RgbdOdometry:
         else:
             ok, Rt = self._odometry.compute(reference_depth, reference_grey, depth, grey)
         self.counters.seconds += time.perf_counter() - started
-        if not ok:
-            return self._gap("failed", stamp, "OpenCV found no transformation")
-        if not np.isfinite(Rt).all():
-            return self._gap("non_finite", stamp, "non-finite motion")
-        elapsed = max(stamp - reference_stamp, 1e-6)
-        distance = float(np.linalg.norm(Rt[:3, 3]))
-        angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(Rt[:3, :3])) - 1.0) / 2.0))))
-        if distance > self.config.max_speed * elapsed or angle > self.config.max_angular_speed_deg * elapsed:
-            return self._gap("implausible", stamp, f"{distance:.3f} m, {angle:.1f}° in {elapsed:.3f} s")
+        unmatched = self._mismatch(ok, Rt, stamp - reference_stamp)
+        if unmatched is not None:
+            self._unmatched += 1
+            if self._unmatched >= self.config.resume_after:  # lost: resume from this frame
+                self._reference, self._unmatched = (stamp, grey, depth), 0
+                self.counters.resumed += 1
+                logger.info("odometry resumes at %.3f s from the last pose, after %d unmatched frames", stamp, self.config.resume_after)
+            return self._gap(*unmatched, stamp)
+        self._unmatched = 0
         self._pose_cv = self._pose_cv @ np.linalg.inv(Rt)
         self._reference = (stamp, grey, depth)
         self.counters.poses += 1
         return self._pose()
 
+    def _mismatch(self, ok: bool, Rt: np.ndarray, elapsed: float) -> tuple[str, str] | None:
+        """Why OpenCV's answer ``Rt`` (4, 4) over ``elapsed`` seconds is not a motion (gap reason and detail); None when it is one."""
+        if not ok:
+            return "failed", "OpenCV found no transformation"
+        if not np.isfinite(Rt).all():
+            return "non_finite", "non-finite motion"
+        elapsed = max(elapsed, 1e-6)
+        distance = float(np.linalg.norm(Rt[:3, 3]))
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(Rt[:3, :3])) - 1.0) / 2.0))))
+        if distance > self.config.max_speed * elapsed or angle > self.config.max_angular_speed_deg * elapsed:
+            return "implausible", f"{distance:.3f} m, {angle:.1f}° in {elapsed:.3f} s"
+        return None
+
     def _pose(self) -> torch.Tensor:
         return torch.from_numpy(_FLIP @ self._pose_cv @ _FLIP)
 
-    def _gap(self, reason: str, stamp: float, detail: str) -> None:
+    def _gap(self, reason: str, detail: str, stamp: float) -> None:
         self.counters.gaps[reason] += 1
         logger.info("odometry gap at %.3f s (%s): %s", stamp, reason, detail)
         return None

@@ -66,9 +66,12 @@ def sequence_track(
     split: str,
     T_depth_colour: torch.Tensor | None = None,
     passes: int = 1,
+    path_times: torch.Tensor | None = None,
 ) -> OdometryTrack | None:
     """The real odometry on ``stamps`` (K,) of a replay of ``path`` (read from ``folder``'s ``split``
     with the colour camera ``T_depth_colour`` and ``passes``, as the path was); None for ``synthetic``.
+    ``rgbd`` reads the frame the camera delivers at ``path_times`` (K,) along the path (a kidnapping's
+    jump included; None: the stamps), as a robot's own odometry would see them.
 
     Raises:
         LocnerfInputError: ``rgbd`` on a replay not at the capture's frame rate (its stamps fall between frames).
@@ -81,13 +84,20 @@ def sequence_track(
         extrinsic = None if config.T_body_cam is None else torch.tensor(config.T_body_cam, dtype=torch.float64)
         return file_track(config.source, stamps, config.file_format, extrinsic, config.max_gap)
     frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour)
-    return rgbd_track(frames, _replayed_frames(path, stamps, len(frames), passes), stamps, config.rgbd)
+    return rgbd_track(frames, _replayed_frames(path, stamps if path_times is None else path_times, len(frames), passes), stamps, config.rgbd)
 
 
 def sequence_rgbd_frames(
-    path: SequencePath, stamps: torch.Tensor, folder: str | Path, split: str, T_depth_colour: torch.Tensor | None = None, passes: int = 1
+    path: SequencePath,
+    stamps: torch.Tensor,
+    folder: str | Path,
+    split: str,
+    T_depth_colour: torch.Tensor | None = None,
+    passes: int = 1,
+    path_times: torch.Tensor | None = None,
 ) -> Iterator[RgbdFrameEvent]:
-    """The RGB-D frames a camera replaying ``path`` delivers at ``stamps`` (K,), for odometry computed
+    """The RGB-D frames a camera replaying ``path`` delivers at ``stamps`` (K,), where it is at ``path_times``
+    (K,) along the path (a kidnapping's jump included; None: the stamps), for odometry computed
     online (services/sensor_ingest/odometry_stage.py): colour and depth read at the odometry's working
     size (:data:`ODOMETRY_DOWNSCALE`) from ``folder``'s ``split`` as :func:`sequence_track` reads them,
     8-bit colour and millimetre depth as sent. Read at once, each event made as it is asked for.
@@ -98,7 +108,7 @@ def sequence_rgbd_frames(
     frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour)
     if frames.depths is None or frames.depth_intrinsics is None:
         raise DatasetError(f"{frames.source}: RGB-D odometry needs depth images, and these frames have none")
-    indices = _replayed_frames(path, stamps, len(frames), passes)
+    indices = _replayed_frames(path, stamps if path_times is None else path_times, len(frames), passes)
     return (
         RgbdFrameEvent(stamp, ImageEvent(stamp, rgb8(frames.images[index]), frames.intrinsics, posed_depth_frame(frames, index)))
         for stamp, index in zip(stamps.tolist(), indices)

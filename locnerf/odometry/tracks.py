@@ -38,12 +38,16 @@ class OdometryTrack:
         valid: (K,) bool: whether the stamp has odometry (False: a gap).
         label: ``file:<name>`` or ``rgbd``.
         report: counts for the result JSON (poses, gaps and their reasons, time per frame).
+        from_camera: computed from the frames the run's camera delivers (RGB-D odometry), so that a
+            simulated kidnapping reaches it as it would reach a robot's own odometry; a recorded file
+            follows the recorded camera and cannot see such a jump.
     """
 
     poses: torch.Tensor
     valid: torch.Tensor
     label: str
     report: dict[str, Any] = field(default_factory=dict)
+    from_camera: bool = False
 
     def __post_init__(self) -> None:
         if self.poses.ndim != 3 or self.poses.shape[1:] != (4, 4) or self.valid.shape != (len(self.poses),):
@@ -100,4 +104,4 @@ def rgbd_track(frames: PosedImages, frame_indices: list[int], stamps: torch.Tens
             poses[k], valid[k] = pose @ T_depth_cam, True
     report = {"kind": config.kind, **odometry.counters.as_dict()}
     logger.info("RGB-D odometry: %s", report)
-    return OdometryTrack(poses, valid, "rgbd", report)
+    return OdometryTrack(poses, valid, "rgbd", report, from_camera=True)

@@ -129,6 +129,12 @@ def run_stamps(path: CameraPath, config: ScenarioConfig) -> torch.Tensor:
     return _timeline(path, config).stamps
 
 
+def run_path_times(path: CameraPath, config: ScenarioConfig) -> torch.Tensor:
+    """(K,) float64 time along the path where the camera is at each of :func:`run_stamps` (jumping at a kidnapping):
+    which recorded frame it delivers there."""
+    return _timeline(path, config).path_times
+
+
 def check_timeline(path: CameraPath, config: ScenarioConfig) -> None:
     """Refuse now what simulating the run would refuse (rates, kidnapping time), e.g. before
     services that replay it are started.
@@ -151,16 +157,18 @@ def scenario_segments(
 
     Raises:
         ValueError: at once, not on iteration: an image rate above the odometry rate, a kidnapping
-            outside the run, ``segment_ticks`` < 1, a track of another length or with a kidnapping
-            (recorded odometry cannot be made blind to a jump of the camera).
+            outside the run, ``segment_ticks`` < 1, a track of another length, or a kidnapping with a
+            track that did not come from the camera's own frames (a recorded file cannot see the jump).
     """
     if segment_ticks < 1:
         raise ValueError(f"segment_ticks {segment_ticks}: expected at least 1 stamp per segment")
     timeline = _timeline(path, config)
-    if track is not None and (len(track.poses) != len(timeline.stamps) or timeline.kidnap_tick is not None):
+    if track is not None and len(track.poses) != len(timeline.stamps):
+        raise LocnerfInputError(f"odometry {track.label}: {len(track.poses)} stamps for a run of {len(timeline.stamps)}; expected one pose or gap per stamp")
+    if track is not None and timeline.kidnap_tick is not None and not track.from_camera:
         raise LocnerfInputError(
-            f"odometry {track.label}: {len(track.poses)} stamps for a run of {len(timeline.stamps)}"
-            f"{' with a kidnapping' if timeline.kidnap_tick is not None else ''}; expected one pose or gap per stamp and no kidnapping"
+            f"odometry {track.label} with a kidnapping at {config.kidnap_at} s: a recorded trajectory follows the recorded camera and cannot"
+            " see the simulated jump; expected the synthetic odometry or RGB-D odometry computed from the camera's frames (rgbd)"
         )
     return _simulate_segments(path, config, normalization, timeline, segment_ticks, track)
 

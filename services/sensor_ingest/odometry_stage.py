@@ -15,7 +15,7 @@ with ``queue_frames`` earlier ones (``dropped``: the stage cannot keep up, as a 
 frames). OpenCV releases the interpreter lock while it computes, so the thread runs beside the
 pacer; ``threads`` caps OpenCV's own threads (1: one core).
 
-:meth:`OdometryStage.counters` reports, as integers for the ingest's status: frames, poses, gaps
+:meth:`OdometryStage.counters` reports, as integers for the ingest's status: frames, poses, resumptions, gaps
 (and per reason), the time per frame (wall and the thread's CPU time, microseconds: median,
 min, max, 10th and 90th percentiles), the latency from hand-over to publication and the achieved
 rate of published poses (millihertz).
@@ -92,7 +92,8 @@ class OdometryStage:
         self._lock = threading.Lock()
         self.dropped = 0
         self.published = 0
-        self._frames = 0  # frames the odometry saw and its gaps by reason, copied after each step
+        self._frames = 0  # frames the odometry saw, its gaps by reason and how often it resumed, copied after each step
+        self._resumed = 0
         self._reasons: dict[str, int] = {}
         self._wall: list[float] = []
         self._cpu: list[float] = []
@@ -150,7 +151,7 @@ class OdometryStage:
         if pose is not None and depth.T_cam_depth is not None:
             pose = pose @ pose_inverse(depth.T_cam_depth.double())
         with self._lock:
-            self._frames, self._reasons = self._odometry.counters.frames, dict(self._odometry.counters.gaps)
+            self._frames, self._reasons, self._resumed = self._odometry.counters.frames, dict(self._odometry.counters.gaps), self._odometry.counters.resumed
             self._wall.append(time.perf_counter() - wall)
             self._cpu.append(time.thread_time() - cpu)
             del self._wall[:-_MAX_SAMPLES], self._cpu[:-_MAX_SAMPLES]
@@ -169,7 +170,7 @@ class OdometryStage:
         and rate (see the module; their percentiles cost a sort of every frame's)."""
         with self._lock:
             wall, cpu, latency, stamps = (list(self._wall), list(self._cpu), list(self._latency), list(self._published_at)) if timings else ([], [], [], [])
-            dropped, published, frames, reasons = self.dropped, self.published, self._frames, dict(self._reasons)
+            dropped, published, frames, reasons, resumed = self.dropped, self.published, self._frames, dict(self._reasons), self._resumed
         if dropped:
             reasons["dropped"] = dropped
         counts = {
@@ -177,6 +178,7 @@ class OdometryStage:
             "odometry_poses": published,
             "odometry_gaps": sum(reasons.values()),
             **{f"odometry_gaps_{reason}": n for reason, n in reasons.items()},
+            "odometry_resumed": resumed,
         }
         counts |= _percentiles(wall, "odometry_wall") | _percentiles(cpu, "odometry_cpu") | _percentiles(latency, "odometry_latency")
         if len(stamps) >= 2 and stamps[-1] > stamps[0]:

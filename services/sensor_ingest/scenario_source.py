@@ -26,7 +26,7 @@ from locnerf.odometry.sequence import RGBD, RGBD_ONLINE, SYNTHETIC, OdometrySour
 from locnerf.odometry.tracks import OdometryTrack
 from locnerf.sim.events import GroundTruthEvent, RgbdFrameEvent, SensorEvent
 from locnerf.sim.paths import CameraPath, SequencePath, WorldPath, read_sequence_path
-from locnerf.sim.scenario import ScenarioConfig, run_stamps
+from locnerf.sim.scenario import ScenarioConfig, run_path_times, run_stamps
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.stream import simulated_events
 from locnerf.sim.trajectory import FigureEightTrajectory
@@ -100,12 +100,14 @@ def scenario_events(config: ScenarioSourceConfig, seed: int, online_rgbd: bool =
         if config.odometry.source != SYNTHETIC or config.passes != 1:
             raise LocnerfInputError("sequence 'world': expected the synthetic odometry and one pass (real odometry needs recorded frames)")
         return simulated_events(path, run)
-    stamps = run_stamps(path, run)
+    stamps, path_times = run_stamps(path, run), run_path_times(path, run)
     if online_rgbd and config.odometry.source == RGBD:
-        frames = sequence_rgbd_frames(path, stamps, config.sequence, config.split, _colour_camera(config), config.passes)
-        none = OdometryTrack(torch.eye(4, dtype=torch.float64).repeat(len(stamps), 1, 1), torch.zeros(len(stamps), dtype=torch.bool), RGBD_ONLINE)
+        frames = sequence_rgbd_frames(path, stamps, config.sequence, config.split, _colour_camera(config), config.passes, path_times)
+        none = OdometryTrack(
+            torch.eye(4, dtype=torch.float64).repeat(len(stamps), 1, 1), torch.zeros(len(stamps), dtype=torch.bool), RGBD_ONLINE, from_camera=True
+        )
         return _with_frames(simulated_events(path, run, track=none), frames)
-    track = sequence_track(config.odometry, path, stamps, config.sequence, config.split, _colour_camera(config), config.passes)
+    track = sequence_track(config.odometry, path, stamps, config.sequence, config.split, _colour_camera(config), config.passes, path_times)
     return simulated_events(path, run, track=track)
 
 

@@ -17,11 +17,16 @@ import torch
 from locnerf.data.detect import dataset_format, read_dataset
 from locnerf.data.trajectory_files import read_trajectory, write_tum
 from locnerf.data.tum_rgbd import associate, read_tum_rgbd
-from locnerf.errors import DatasetError
+from locnerf.errors import DatasetError, LocnerfInputError
+from locnerf.field.protocol import MapNormalization
 from locnerf.filter.depth_measurement import render_depth_image
 from locnerf.geometry import opengl_to_opencv, relative_pose, rotation_error_deg, se3_exp, translation_error
+from locnerf.odometry.sequence import OdometrySourceConfig, sequence_rgbd_frames, sequence_track
+from locnerf.odometry.tracks import OdometryTrack
 from locnerf.render import PinholeIntrinsics
 from locnerf.sim.events import ImageEvent
+from locnerf.sim.paths import read_sequence_path
+from locnerf.sim.scenario import ScenarioConfig, build_scenario, run_path_times, run_stamps
 from locnerf.sim.world import ProceduralWorld
 from locnerf_cli.main import main
 from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
@@ -174,3 +179,31 @@ def test_a_non_rigid_extrinsic_is_refused(tum_folder, tmp_path: Path, caplog: py
     np.savetxt(tmp_path / "extrinsic.txt", np.diag([1.0, 1.0, 1.1, 1.0]))
     assert main(_tracking_argv(folder, tmp_path / "run", "--odometry", str(odometry), "--T-body-cam", str(tmp_path / "extrinsic.txt"))) == 2
     assert re.search(r"--T-body-cam .*extrinsic\.txt: expected a rigid transform", caplog.text), caplog.text
+
+
+def test_a_kidnapped_camera_reaches_the_rgbd_odometry_but_a_recorded_file_is_refused(tum_folder, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A kidnapping moves the camera ahead along the path: the RGB-D odometry computed from the frames it delivers
+    sees that jump (here a step of 5 frames in one stamp: a gap, then it resumes from the new frame), as a robot's own odometry would; a recorded
+    trajectory follows the recorded camera, so a kidnapping with it is refused, by the library and by the command."""
+    folder, poses = tum_folder
+    path = read_sequence_path(folder, "all", 1, speed=1.0, odom_rate=30.0, frame_rate=30.0)
+    config = ScenarioConfig(duration=0.1, image_rate=15.0, vio={"rate": 30.0}, kidnap_at=0.05, kidnap_shift=4 / 30)
+    stamps, path_times = run_stamps(path, config), run_path_times(path, config)
+    assert torch.allclose(path_times * 30, torch.tensor([0.0, 1.0, 6.0, 7.0], dtype=torch.float64))
+    camera = list(sequence_rgbd_frames(path, stamps, folder, "all", path_times=path_times))
+    sixth = next(sequence_rgbd_frames(path, path_times[2:3], folder, "all"))
+    assert [e.stamp for e in camera] == stamps.tolist() and np.array_equal(camera[2].frame.pixels, sixth.frame.pixels)
+    assert not np.array_equal(camera[2].frame.pixels, next(sequence_rgbd_frames(path, stamps[2:3], folder, "all")).frame.pixels)
+    track = sequence_track(OdometrySourceConfig(source="rgbd", rgbd={"resume_after": 1}), path, stamps, folder, "all", path_times=path_times)
+    # The jump (5 frames in one stamp) does not match: a gap, and the odometry resumes from the camera's new frame, at its last pose.
+    assert track.from_camera and track.valid.tolist() == [True, True, False, True] and track.report["resumed"] == 1
+    step = relative_pose(path.poses_at(path_times[2:3]), path.poses_at(path_times[3:4]))
+    assert float(translation_error(relative_pose(track.poses[1:2], track.poses[3:4]), step)) < 0.005
+    scenario = build_scenario(path, config, MapNormalization(), track=track)
+    assert scenario.kidnap_tick == 2
+    recorded = OdometryTrack(track.poses, track.valid, "file:recorded.txt")
+    with pytest.raises(LocnerfInputError, match=r"odometry file:recorded\.txt with a kidnapping at 0\.05 s: a recorded trajectory follows the recorded camera"):
+        build_scenario(path, config, MapNormalization(), track=recorded)
+    odometry = write_tum(tmp_path / "odometry.txt", np.arange(5) / 15, torch.eye(4, dtype=torch.float64).repeat(5, 1, 1))
+    assert main(_tracking_argv(folder, tmp_path / "run", "--odometry", str(odometry), "--kidnap-at", "0.1")) == 2
+    assert re.search(r"--kidnap-at with --odometry .*odometry\.txt: a recorded trajectory .* expected --odometry synthetic, or rgbd", caplog.text)

@@ -62,6 +62,22 @@ def test_failures_are_gaps_and_the_next_frame_is_matched_to_the_last_tracked_one
     assert counters["gaps"] == 2 and counters["gap_reasons"] == {"no_depth": 1, "implausible": 1} and counters["poses"] == 2
 
 
+def test_after_frames_in_a_row_that_do_not_match_it_resumes_from_the_last_pose(frames) -> None:
+    """Lost (a kidnapping, a long blur): ``resume_after`` unmatched frames in a row, and the last of them becomes the
+    reference at the last pose; the next frame's pose is that pose carried by the one step since, the motion across
+    the gap left out (a gap, never a made-up motion)."""
+    poses, images = frames
+    odometry = RgbdOdometry(RgbdOdometryConfig(min_depth=0.05, max_depth=20.0, max_speed=2.0, resume_after=2), CAMERA)
+    assert odometry.step(0.0, *images[0]) is not None
+    assert odometry.step(0.001, *images[2]) is None  # implausible against frame 0
+    assert odometry.step(0.002, *images[3]) is None  # again: frame 3 becomes the reference, at frame 0's pose
+    pose = odometry.step(0.002 + 1 / 15, *images[4])
+    truth = relative_pose(poses[3], poses[4])
+    assert pose is not None and float(translation_error(pose, truth)) < 0.005 and float(rotation_error_deg(pose, truth)) < 0.2
+    counters = odometry.counters.as_dict()
+    assert counters["resumed"] == 1 and counters["gap_reasons"] == {"implausible": 2} and counters["poses"] == 2
+
+
 def test_registration_resamples_colour_onto_the_depth_grid() -> None:
     """A colour camera with twice the focal length and resolution sees pixel (u, v) of the depth grid at (2u + 0.5, 2v + 0.5)."""
     depth = PinholeIntrinsics(fx=100.0, fy=100.0, cx=39.5, cy=29.5, width=80, height=60)

@@ -94,7 +94,7 @@ def test_submit_never_waits_and_a_busy_stage_drops_the_frame_as_a_gap(frames) ->
         stage.submit(events[3])
     assert published[0] == 0.0 and published[-1] == pytest.approx(3 / 15) and 2 / 15 not in published
     counters = stage.counters()
-    assert counters["odometry_frames"] == 4 and counters["odometry_poses"] == 3 and counters["odometry_gaps"] == 1
+    assert counters["odometry_frames"] == 4 and counters["odometry_poses"] == 3 and counters["odometry_gaps"] == 1 and counters["odometry_resumed"] == 0
 
 
 def test_a_failure_in_the_stage_is_raised_in_the_ingest(frames) -> None:
