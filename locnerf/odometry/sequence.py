@@ -116,8 +116,19 @@ def sequence_rgbd_frames(
 
 
 def _replayed_frames(path: SequencePath, stamps: torch.Tensor, count: int, passes: int) -> list[int]:
-    """The split's frame shown at each of ``stamps`` by a replay of ``count`` frames in ``passes`` passes."""
+    """The split's frame shown at each of ``stamps`` (path times) by a replay of ``count`` frames in ``passes`` passes.
+
+    Raises:
+        LocnerfInputError: a time past the replay's last frame (it would wrap to the first), or between frames.
+    """
     order = bounce_order(count, passes)  # the replay's frames as positions in the split, never copied
+    last = path.duration - path.frame_period
+    if len(stamps) and float(stamps.max()) > last + 1e-9:
+        raise LocnerfInputError(
+            f"RGB-D odometry: the replayed camera reaches path time {float(stamps.max()):.3f} s, past its last frame at {last:.3f} s, where the"
+            f" replay would jump back to its first frame (a jump no camera makes); expected a shorter run or an earlier or smaller kidnapping,"
+            f" or --passes {passes + 1} or more to replay the frames forward and backward"
+        )
     try:
         return [order[path.frame_at(float(stamp))] for stamp in stamps]
     except ValueError as error:

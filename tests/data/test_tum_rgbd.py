@@ -201,6 +201,11 @@ def test_a_kidnapped_camera_reaches_the_rgbd_odometry_but_a_recorded_file_is_ref
     assert float(translation_error(relative_pose(track.poses[1:2], track.poses[3:4]), step)) < 0.005
     scenario = build_scenario(path, config, MapNormalization(), track=track)
     assert scenario.kidnap_tick == 2
+    past_the_end = run_path_times(path, config.model_copy(update={"kidnap_shift": 6 / 30}))  # up to frame 9 of 8: it would wrap to frame 0
+    with pytest.raises(LocnerfInputError, match=r"reaches path time 0\.300 s, past its last frame at 0\.233 s.* or --passes 2 or more"):
+        sequence_track(OdometrySourceConfig(source="rgbd"), path, stamps, folder, "all", path_times=past_the_end)
+    bounced = read_sequence_path(folder, "all", 1, speed=1.0, odom_rate=30.0, frame_rate=30.0, passes=2)
+    assert len(list(sequence_rgbd_frames(bounced, stamps, folder, "all", passes=2, path_times=past_the_end))) == 4
     recorded = OdometryTrack(track.poses, track.valid, "file:recorded.txt")
     with pytest.raises(LocnerfInputError, match=r"odometry file:recorded\.txt with a kidnapping at 0\.05 s: a recorded trajectory follows the recorded camera"):
         build_scenario(path, config, MapNormalization(), track=recorded)
