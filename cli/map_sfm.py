@@ -12,7 +12,7 @@ from locnerf.data.sfm_poses import POSES_METADATA_KEY
 from locnerf.errors import LocnerfInputError
 from locnerf.field.map_file import load_map, save_map
 from locnerf.sfm.alignment import FRAMES_KEY, aligned_normalization, alignment_errors, truth_of_frames
-from locnerf.sfm.pipeline import MetricOptions, posed_capture
+from locnerf.sfm.pipeline import DEPTH_CAMERA_PLACEMENTS, MetricOptions, posed_capture
 from locnerf.sfm.reconstruct import SfmConfig
 from locnerf_cli.flags import from_flags
 
@@ -41,9 +41,11 @@ def add_sfm_arguments(build: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--no-depth-scale", action="store_true", help="do not take the scale from the capture's depth images")
     group.add_argument(
-        "--calibrate-depth-camera",
-        action="store_true",
-        help="place an RGB-D capture's depth camera from the SfM points against the depth images (experimental; default: at the colour camera)",
+        "--depth-camera",
+        choices=DEPTH_CAMERA_PLACEMENTS,
+        default="colour",
+        help="an RGB-D capture's depth camera: at the colour camera (default), from the SfM points against the depth images (points),"
+        " or by the grey values of depth points across the colour images (photometric); docs/MAPS.md",
     )
     group.add_argument("--sfm-features", type=int, help=f"most SIFT features per image (default {SfmConfig().max_features})")
     group.add_argument("--sfm-camera", help=f"COLMAP camera model (default {SfmConfig().camera_model})")
@@ -67,9 +69,7 @@ def posed_capture_of_args(args: argparse.Namespace) -> tuple[PosedImages, dict]:
     values = {"max_features": args.sfm_features, "camera_model": args.sfm_camera, "vocab_tree": args.vocab_tree, "seed": args.seed}
     sfm = from_flags(SfmConfig, {key: value for key, value in values.items() if value is not None})
     cache = Path(args.sfm_cache) if args.sfm_cache else Path(f"{args.out}.sfm")
-    return posed_capture(
-        args.data, cache, metric, sfm, downscale=args.downscale, stride=args.stride, split=args.split, calibrate_depth_camera=args.calibrate_depth_camera
-    )
+    return posed_capture(args.data, cache, metric, sfm, downscale=args.downscale, stride=args.stride, split=args.split, depth_camera=args.depth_camera)
 
 
 def add_align_command(commands: argparse._SubParsersAction) -> None:

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from locnerf.data.colour_camera import METADATA_KEY
+from locnerf.data.colour_camera import METADATA_KEY, calibrate_colour_camera
 from locnerf.data.posed_images import PosedImages
 from locnerf.data.seven_scenes import read_depth
 from locnerf.errors import DatasetError
@@ -226,3 +227,31 @@ def with_calibrated_depth_camera(images: PosedImages, views: list[DepthView], co
         return images, {METADATA_RECORD: {"skipped": str(error)}}
     T_cam_depth = pose_inverse(calibration.T_depth_colour)
     return replace(images, T_cam_depth=T_cam_depth), {METADATA_KEY: calibration.T_depth_colour.tolist(), METADATA_RECORD: calibration.record()}
+
+
+def with_photometric_depth_camera(images: PosedImages) -> tuple[PosedImages, dict]:
+    """``images`` (posed at the SfM colour camera, metric, with depth) with their depth camera placed by the photometric
+    calibration of posed RGB-D data (:func:`locnerf.data.colour_camera.calibrate_colour_camera`) run on the colour
+    poses taken as the depth camera's: depth points placed from each pose, and the offset that makes their grey values
+    agree across the colour images that see them; the depth camera then sits at its inverse. One pass from the colour
+    camera: on the kitchen it lands 15 mm and 0.6° from the calibration on the data set's depth-camera poses, where the
+    depth camera at the colour camera is 29 mm and 1.15° from it (docs/MAPS.md). Without depth images, or with too few
+    overlapping frames (a warning), the depth camera stays at the colour camera."""
+    if images.depths is None:
+        return images, {}
+    started = time.monotonic()
+    try:
+        calibration = calibrate_colour_camera(replace(images, T_cam_depth=None))
+    except DatasetError as error:
+        logger.warning("depth camera taken at the colour camera's pose: %s", error)
+        return images, {METADATA_RECORD: {"skipped": str(error)}}
+    record = {
+        "method": "photometric",
+        "translation_m": float(calibration.T_depth_colour[:3, 3].norm()),
+        "rotation_deg": math.degrees(float(rotation_angle(calibration.T_depth_colour[:3, :3]))),
+        "inconsistency_before": round(calibration.inconsistency_before, 5),
+        "inconsistency_after": round(calibration.inconsistency_after, 5),
+        "points": calibration.points,
+        "seconds": round(time.monotonic() - started, 1),
+    }
+    return replace(images, T_cam_depth=pose_inverse(calibration.T_depth_colour)), {METADATA_KEY: calibration.T_depth_colour.tolist(), METADATA_RECORD: record}

@@ -31,7 +31,7 @@ from locnerf.geometry.frames import opencv_to_opengl, opengl_to_opencv
 from locnerf.geometry.similarity import Similarity
 from locnerf.sfm.alignment import FRAMES_KEY
 from locnerf.sfm.capture import Capture, capture_kind, model_folder, read_capture
-from locnerf.sfm.depth_camera import capture_depth_views, with_calibrated_depth_camera
+from locnerf.sfm.depth_camera import capture_depth_views, with_calibrated_depth_camera, with_photometric_depth_camera
 from locnerf.sfm.forward_facing import forward_facing_frame, image_depth_bounds
 from locnerf.sfm.metric import (
     ScaleEstimate,
@@ -162,6 +162,10 @@ def _transforms_as_is(path: Path, downscale: int | None, options: MetricOptions)
     return replace(images, T_world_cam=poses, scene_bounds=box, near=near, far=far, normalization=normalization), sfm_record, record
 
 
+DEPTH_CAMERA_PLACEMENTS = ("colour", "points", "photometric")
+"""Where :func:`posed_capture` puts an RGB-D capture's depth camera (``map build --sfm --depth-camera``)."""
+
+
 def posed_capture(
     path: str | Path,
     cache_folder: Path,
@@ -171,7 +175,7 @@ def posed_capture(
     stride: int = 1,
     split: str = "train",
     video: VideoSelection | None = None,
-    calibrate_depth_camera: bool = False,
+    depth_camera: str = "colour",
 ):
     """Posed images of a capture in the map frame, and map metadata (``sfm`` and ``metric_frame``).
 
@@ -181,11 +185,17 @@ def posed_capture(
         downscale: image size divisor of the map (default 4 for RGB-D data, else 1); an LLFF capture's images are
             ``images_<downscale>/``'s (default 8), and its map is forward-facing (NDC rays, :mod:`locnerf.sfm.forward_facing`).
         stride, split: which images of an image folder or RGB-D data set are posed.
-        calibrate_depth_camera: place an RGB-D capture's depth camera by :mod:`locnerf.sfm.depth_camera` (else at
-            the colour camera; on the kitchen the calibration made single-image localization worse: docs/RESULTS.md).
+        depth_camera: where an RGB-D capture's depth camera is (:data:`DEPTH_CAMERA_PLACEMENTS`): ``colour``, at the colour
+            camera; ``points``, from the SfM points against the depth images; ``photometric``, by the grey values of
+            depth points across the colour images (:mod:`locnerf.sfm.depth_camera`; docs/MAPS.md).
+
+    Raises:
+        DatasetError: an unknown ``depth_camera``, besides the readers' and SfM's reasons.
     Returns:
         (PosedImages, metadata dict).
     """
+    if depth_camera not in DEPTH_CAMERA_PLACEMENTS:
+        raise DatasetError(f"depth camera placement {depth_camera!r}: expected one of {', '.join(DEPTH_CAMERA_PLACEMENTS)}")
     path = Path(path)
     kind = capture_kind(path)
     if kind == "transforms":
@@ -224,9 +234,11 @@ def posed_capture(
     images = posed_images_from_reconstruction(reconstruction, capture, to_map, MAP_UP, scale_down, use_depth=record["metric"])
     if capture.kind == "llff":
         images, sfm_record["forward_facing"] = forward_facing_frame(images, image_depth_bounds(reconstruction, list(poses_cv), to_map.scale))
-    depth_camera = {}
-    if calibrate_depth_camera:
-        images, depth_camera = with_calibrated_depth_camera(images, capture_depth_views(reconstruction, capture, to_map.scale))
+    placed = {}
+    if depth_camera == "points":
+        images, placed = with_calibrated_depth_camera(images, capture_depth_views(reconstruction, capture, to_map.scale))
+    elif depth_camera == "photometric":
+        images, placed = with_photometric_depth_camera(images)
     sfm_record[FRAMES_KEY] = images.names
     sfm_record[CAMERA_KEY] = lens_record(*colmap_camera(next(iter(reconstruction.cameras.values()))))
-    return images, {"sfm": sfm_record, METRIC_FRAME_KEY: record, **depth_camera}
+    return images, {"sfm": sfm_record, METRIC_FRAME_KEY: record, **placed}

@@ -9,8 +9,10 @@ import torch
 from locnerf.data.posed_images import PosedImages
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.depth_measurement import render_depth_image
+from locnerf.filter.warp import project_points
 from locnerf.geometry import make_pose, se3_exp, so3_exp
 from locnerf.render import PinholeIntrinsics
+from locnerf.render.rays import camera_directions_from_pixels
 from locnerf.sim.textures import TextureConfig
 from locnerf.sim.world import ProceduralWorld, WorldConfig
 
@@ -46,3 +48,17 @@ def rgbd_sequence(world: ProceduralWorld, frames: int = 30) -> PosedImages:
 
 FINE_TEXTURE = WorldConfig(texture=TextureConfig(detail_weight=0.6, noise_cell=0.03, stripe_period=0.08))
 """Centimetre detail, as a real room has: the default world's 12 cm noise cells barely change under a few centimetres' offset."""
+
+
+def pixel_shift(sequence: PosedImages, T_a: torch.Tensor, T_b: torch.Tensor) -> torch.Tensor:
+    """(P,) pixel distances between the projections of every frame's depth points into colour cameras at ``T_a`` and ``T_b``."""
+    shifts = []
+    for frame in range(0, len(sequence), 4):
+        camera = sequence.depth_poses()[frame]
+        depth = sequence.depths[frame]
+        rows, cols = torch.nonzero(depth > 0, as_tuple=True)
+        local = camera_directions_from_pixels(torch.stack((cols, rows), dim=-1).double(), DEPTH) * depth[rows, cols, None].double()
+        points = local @ camera[:3, :3].T + camera[:3, 3]
+        pixels = [project_points((camera @ T)[None], torch.cat((points, torch.ones_like(points[:, :1])), dim=-1), COLOUR)[0][0] for T in (T_a, T_b)]
+        shifts.append((pixels[0] - pixels[1]).norm(dim=-1))
+    return torch.cat(shifts)

@@ -20,31 +20,15 @@ from locnerf.data.colour_camera import (
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
 from locnerf.field.protocol import MapNormalization
-from locnerf.filter.warp import project_points
 from locnerf.geometry import pose_inverse, rotation_angle
-from locnerf.render.rays import camera_directions_from_pixels
 from locnerf.sim.world import ProceduralWorld
 from locnerf.train.depth_rays import depth_training_rays
-from tests.data.rgbd_world import COLOUR, DEPTH, FINE_TEXTURE, TRUE_OFFSET, rgbd_sequence
+from tests.data.rgbd_world import FINE_TEXTURE, TRUE_OFFSET, pixel_shift, rgbd_sequence
 
 
 @pytest.fixture(scope="module")
 def sequence() -> PosedImages:
     return rgbd_sequence(ProceduralWorld(FINE_TEXTURE))
-
-
-def _pixel_shift(sequence: PosedImages, T_a: torch.Tensor, T_b: torch.Tensor) -> torch.Tensor:
-    """(P,) pixel distances between the projections of every frame's depth points into colour cameras at ``T_a`` and ``T_b``."""
-    shifts = []
-    for frame in range(0, len(sequence), 4):
-        camera = sequence.depth_poses()[frame]
-        depth = sequence.depths[frame]
-        rows, cols = torch.nonzero(depth > 0, as_tuple=True)
-        local = camera_directions_from_pixels(torch.stack((cols, rows), dim=-1).double(), DEPTH) * depth[rows, cols, None].double()
-        points = local @ camera[:3, :3].T + camera[:3, 3]
-        pixels = [project_points((camera @ T)[None], torch.cat((points, torch.ones_like(points[:, :1])), dim=-1), COLOUR)[0][0] for T in (T_a, T_b)]
-        shifts.append((pixels[0] - pixels[1]).norm(dim=-1))
-    return torch.cat(shifts)
 
 
 def test_calibration_recovers_a_known_offset(sequence: PosedImages) -> None:
@@ -53,8 +37,8 @@ def test_calibration_recovers_a_known_offset(sequence: PosedImages) -> None:
     sideways shift much better). Measured when written (30 frames): 0.08 px median, 1 mm and 0.03 degrees
     off; with no offset the points land 6.0 px away."""
     calibration = calibrate_colour_camera(sequence, CalibrationConfig(references=10, neighbours=(-3, -2, -1, 1, 2, 3), iterations=200, learning_rate=2e-3))
-    assert float(_pixel_shift(sequence, calibration.T_depth_colour, TRUE_OFFSET).median()) < 0.5
-    assert float(_pixel_shift(sequence, torch.eye(4, dtype=torch.float64), TRUE_OFFSET).median()) > 4.0
+    assert float(pixel_shift(sequence, calibration.T_depth_colour, TRUE_OFFSET).median()) < 0.5
+    assert float(pixel_shift(sequence, torch.eye(4, dtype=torch.float64), TRUE_OFFSET).median()) > 4.0
     error = pose_inverse(TRUE_OFFSET) @ calibration.T_depth_colour
     assert float(error[:3, 3].norm()) < 0.005, calibration.T_depth_colour
     assert math.degrees(float(rotation_angle(error[:3, :3]))) < 0.3, calibration.T_depth_colour

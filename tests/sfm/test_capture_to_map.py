@@ -51,7 +51,7 @@ def _scored(images, truth: torch.Tensor) -> dict:
 
 def test_rgbd_capture_to_a_metric_map_and_its_cache(capture, tmp_path):
     folder, cache, truth = capture
-    images, metadata = posed_capture(folder, cache, calibrate_depth_camera=True)
+    images, metadata = posed_capture(folder, cache, depth_camera="points")
     assert metadata["sfm"]["posed"] == FRAMES and not metadata["sfm"]["unregistered"] and not metadata["sfm"]["cached"]
     frame = metadata[METRIC_FRAME_KEY]
     assert frame["metric"] and frame["scale"]["source"] == "depth" and frame["gravity"]["source"] == "level_cameras"
@@ -187,3 +187,9 @@ def test_an_llff_folder_alone_makes_a_forward_facing_map_that_aligns_to_its_pose
     assert in_map.normalization.ndc and in_map.near == images.normalization.near
     gap = np.linalg.norm(in_map.T_world_cam[:, :3, 3].numpy() - images.T_world_cam[:, :3, 3].numpy(), axis=1)
     assert gap.max() == pytest.approx(report["summary"]["translation_max_m"] / similarity.scale, rel=1e-6)  # the fit's errors, in map units
+
+
+def test_an_unknown_depth_camera_placement_is_refused(capture) -> None:
+    folder, cache, _ = capture
+    with pytest.raises(DatasetError, match=r"depth camera placement 'nowhere': expected one of colour, points, photometric"):
+        posed_capture(folder, cache, depth_camera="nowhere")

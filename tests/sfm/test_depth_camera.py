@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
 
+from locnerf.data.colour_camera import colour_camera_of, with_colour_camera
 from locnerf.errors import DatasetError
 from locnerf.filter.depth_measurement import render_depth_image
 from locnerf.geometry import pose_inverse, rotation_angle
 from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
-from locnerf.sfm.depth_camera import DepthView, calibrate_depth_camera
+from locnerf.sfm.depth_camera import METADATA_RECORD, DepthView, calibrate_depth_camera, with_photometric_depth_camera
 from locnerf.sim.world import ProceduralWorld
-from tests.data.rgbd_world import DEPTH, TRUE_OFFSET
+from tests.data.rgbd_world import DEPTH, FINE_TEXTURE, TRUE_OFFSET, pixel_shift, rgbd_sequence
 from tests.sfm.world_capture import capture_poses
 
 
@@ -59,3 +61,24 @@ def test_points_that_meet_no_depth_reading_are_refused():
     far_away = [DepthView(view.points + torch.tensor([0.0, 0.0, -50.0], dtype=torch.float64), view.depth, view.intrinsics) for view in views]
     with pytest.raises(DatasetError, match="meet a depth reading"):
         calibrate_depth_camera(far_away)
+
+
+def test_the_photometric_placement_brings_the_depth_points_close_to_the_true_camera() -> None:
+    """Frames posed at their colour camera with depth images from the Kinect-like offset, as SfM poses an RGB-D capture:
+    the photometric placement moves the depth camera off the colour camera toward the true one, so the depth points
+    land within 2 px of where the true offset projects them, under a third of the 6 px they are off with the depth
+    camera at the colour camera. Not all the way (one pass from the colour camera; measured when written: 1.66 px,
+    11 mm and 0.47 degrees off the truth, as on the kitchen: 15 mm and 0.6 degrees from the posed build's calibration)."""
+    sequence = rgbd_sequence(ProceduralWorld(FINE_TEXTURE))
+    colour_posed = replace(with_colour_camera(sequence, TRUE_OFFSET), T_cam_depth=None)
+    placed, metadata = with_photometric_depth_camera(colour_posed)
+    T_depth_colour = pose_inverse(placed.T_cam_depth)
+    torch.testing.assert_close(colour_camera_of(metadata), T_depth_colour)
+    assert (
+        metadata[METADATA_RECORD]["method"] == "photometric"
+        and metadata[METADATA_RECORD]["inconsistency_after"] < metadata[METADATA_RECORD]["inconsistency_before"]
+    )
+    at_colour = float(pixel_shift(sequence, torch.eye(4, dtype=torch.float64), TRUE_OFFSET).median())
+    placed_shift = float(pixel_shift(sequence, T_depth_colour, TRUE_OFFSET).median())
+    assert at_colour > 5.0 and placed_shift < 2.0 and placed_shift < at_colour / 3, (placed_shift, at_colour)
+    assert with_photometric_depth_camera(colour_posed.without_depth()) == (colour_posed.without_depth(), {})
