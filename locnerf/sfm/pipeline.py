@@ -189,10 +189,10 @@ def posed_capture(
             camera; ``points``, from the SfM points against the depth images; ``photometric``, by the grey values of
             depth points across the colour images (:mod:`locnerf.sfm.depth_camera`; docs/MAPS.md).
 
-    Raises:
-        DatasetError: an unknown ``depth_camera``, besides the readers' and SfM's reasons.
     Returns:
         (PosedImages, metadata dict).
+    Raises:
+        DatasetError: an unknown ``depth_camera``, besides the readers' and SfM's reasons.
     """
     if depth_camera not in DEPTH_CAMERA_PLACEMENTS:
         raise DatasetError(f"depth camera placement {depth_camera!r}: expected one of {', '.join(DEPTH_CAMERA_PLACEMENTS)}")
