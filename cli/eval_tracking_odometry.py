@@ -27,7 +27,7 @@ from locnerf.eval.tracking_plots import plot_error_and_drift
 from locnerf.eval.trajectory_output import odometry_drift, write_run_trajectories
 from locnerf.field.protocol import MapNormalization
 from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting
-from locnerf.odometry.sequence import SYNTHETIC, OdometrySourceConfig, sequence_track
+from locnerf.odometry.sequence import SYNTHETIC, OdometrySourceConfig, RecordedReplay, sequence_track
 from locnerf.odometry.tracks import OdometryTrack
 from locnerf.sim.paths import CameraPath, SequencePath
 from locnerf.sim.scenario import ScenarioConfig, TrackingScenario, run_path_times, run_stamps
@@ -95,7 +95,7 @@ def offline_track(args: argparse.Namespace, path: CameraPath, scenario_config: S
     if config.source == SYNTHETIC or not isinstance(path, SequencePath):
         return None
     stamps, path_times = run_stamps(path, scenario_config), run_path_times(path, scenario_config)
-    return sequence_track(config, path, stamps, args.sequence, args.split, colour_camera, args.passes, path_times)
+    return sequence_track(config, RecordedReplay(path, args.sequence, args.split, colour_camera, args.passes), stamps, path_times)
 
 
 def odometry_label(args: argparse.Namespace, live: bool = False) -> str:

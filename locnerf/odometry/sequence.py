@@ -10,11 +10,13 @@ EuRoC) matched to the run's stamps (:func:`locnerf.odometry.tracks.file_track`).
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.geometry.validation import validate_pose_setting
 from locnerf.odometry.rgbd import RgbdOdometryConfig
@@ -58,23 +60,34 @@ class OdometrySourceConfig(BaseModel):
         return f"file:{Path(self.source).name}" if self.source != RGBD else RGBD_ONLINE if live else RGBD
 
 
-def sequence_track(
-    config: OdometrySourceConfig,
-    path: SequencePath,
-    stamps: torch.Tensor,
-    folder: str | Path,
-    split: str,
-    T_depth_colour: torch.Tensor | None = None,
-    passes: int = 1,
-    path_times: torch.Tensor | None = None,
-) -> OdometryTrack | None:
-    """The real odometry on ``stamps`` (K,) of a replay of ``path`` (read from ``folder``'s ``split``
-    with the colour camera ``T_depth_colour`` and ``passes``, as the path was); None for ``synthetic``.
-    ``rgbd`` reads the frame the camera delivers at ``path_times`` (K,) along the path (a kidnapping's
-    jump included; None: the stamps), as a robot's own odometry would see them.
+@dataclass(frozen=True)
+class RecordedReplay:
+    """The recorded frames a replay of ``path`` shows: ``folder``'s ``split`` with the colour camera ``T_depth_colour``
+    (4, 4, map units; None: the data set's own) in ``passes`` passes, as the path was read."""
+
+    path: SequencePath
+    folder: str | Path
+    split: str
+    T_depth_colour: torch.Tensor | None = None
+    passes: int = 1
+
+    def frames(self) -> PosedImages:
+        """The split's frames at the odometry's working size (:data:`ODOMETRY_DOWNSCALE`)."""
+        return read_sequence_frames(self.folder, self.split, ODOMETRY_DOWNSCALE, T_depth_colour=self.T_depth_colour)
+
+    def shown(self, path_times: torch.Tensor, count: int) -> list[int]:
+        """The split's frame (of ``count``) the camera delivers at each of ``path_times`` (K,) (:func:`_replayed_frames`)."""
+        return _replayed_frames(self.path, path_times, count, self.passes)
+
+
+def sequence_track(config: OdometrySourceConfig, replay: RecordedReplay, stamps: torch.Tensor, path_times: torch.Tensor | None = None) -> OdometryTrack | None:
+    """The real odometry on ``stamps`` (K,) of ``replay``; None for ``synthetic``. ``rgbd`` reads the frame the
+    camera delivers at ``path_times`` (K,) along the path (a kidnapping's jump included; None: the stamps), as a
+    robot's own odometry would see them.
 
     Raises:
-        LocnerfInputError: ``rgbd`` on a replay not at the capture's frame rate (its stamps fall between frames).
+        LocnerfInputError: ``rgbd`` on a replay not at the capture's frame rate (its stamps fall between frames), or
+            past the replay's last frame.
         FileNotFoundError / DatasetError: an unreadable or malformed trajectory file (file and line
             named), one whose stamps never overlap the run's, or frames without depth for ``rgbd``.
     """
@@ -83,32 +96,23 @@ def sequence_track(
     if config.source != RGBD:
         extrinsic = None if config.T_body_cam is None else torch.tensor(config.T_body_cam, dtype=torch.float64)
         return file_track(config.source, stamps, config.file_format, extrinsic, config.max_gap)
-    frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour)
-    return rgbd_track(frames, _replayed_frames(path, stamps if path_times is None else path_times, len(frames), passes), stamps, config.rgbd)
+    frames = replay.frames()
+    return rgbd_track(frames, replay.shown(stamps if path_times is None else path_times, len(frames)), stamps, config.rgbd)
 
 
-def sequence_rgbd_frames(
-    path: SequencePath,
-    stamps: torch.Tensor,
-    folder: str | Path,
-    split: str,
-    T_depth_colour: torch.Tensor | None = None,
-    passes: int = 1,
-    path_times: torch.Tensor | None = None,
-) -> Iterator[RgbdFrameEvent]:
-    """The RGB-D frames a camera replaying ``path`` delivers at ``stamps`` (K,), where it is at ``path_times``
-    (K,) along the path (a kidnapping's jump included; None: the stamps), for odometry computed
-    online (services/sensor_ingest/odometry_stage.py): colour and depth read at the odometry's working
-    size (:data:`ODOMETRY_DOWNSCALE`) from ``folder``'s ``split`` as :func:`sequence_track` reads them,
+def sequence_rgbd_frames(replay: RecordedReplay, stamps: torch.Tensor, path_times: torch.Tensor | None = None) -> Iterator[RgbdFrameEvent]:
+    """The RGB-D frames the camera of ``replay`` delivers at ``stamps`` (K,), where it is at ``path_times`` (K,) along
+    the path (a kidnapping's jump included; None: the stamps), for odometry computed online
+    (services/sensor_ingest/odometry_stage.py): colour and depth read as :func:`sequence_track` reads them,
     8-bit colour and millimetre depth as sent. Read at once, each event made as it is asked for.
 
     Raises:
-        LocnerfInputError: a replay not at the capture's frame rate; DatasetError: frames without depth.
+        LocnerfInputError: a replay not at the capture's frame rate, or past its last frame; DatasetError: frames without depth.
     """
-    frames = read_sequence_frames(folder, split, ODOMETRY_DOWNSCALE, T_depth_colour=T_depth_colour)
+    frames = replay.frames()
     if frames.depths is None or frames.depth_intrinsics is None:
         raise DatasetError(f"{frames.source}: RGB-D odometry needs depth images, and these frames have none")
-    indices = _replayed_frames(path, stamps if path_times is None else path_times, len(frames), passes)
+    indices = replay.shown(stamps if path_times is None else path_times, len(frames))
     return (
         RgbdFrameEvent(stamp, ImageEvent(stamp, rgb8(frames.images[index]), frames.intrinsics, posed_depth_frame(frames, index)))
         for stamp, index in zip(stamps.tolist(), indices)

@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from locnerf.data.colour_camera import ColourCameraSetting, colour_camera_matrix
 from locnerf.data.sfm_poses import PoseSource
 from locnerf.errors import LocnerfInputError
-from locnerf.odometry.sequence import RGBD, RGBD_ONLINE, SYNTHETIC, OdometrySourceConfig, sequence_rgbd_frames, sequence_track
+from locnerf.odometry.sequence import RGBD, RGBD_ONLINE, SYNTHETIC, OdometrySourceConfig, RecordedReplay, sequence_rgbd_frames, sequence_track
 from locnerf.odometry.tracks import OdometryTrack
 from locnerf.sim.events import GroundTruthEvent, RgbdFrameEvent, SensorEvent
 from locnerf.sim.paths import CameraPath, SequencePath, WorldPath, read_sequence_path
@@ -101,13 +101,14 @@ def scenario_events(config: ScenarioSourceConfig, seed: int, online_rgbd: bool =
             raise LocnerfInputError("sequence 'world': expected the synthetic odometry and one pass (real odometry needs recorded frames)")
         return simulated_events(path, run)
     stamps, path_times = run_stamps(path, run), run_path_times(path, run)
+    replay = RecordedReplay(path, config.sequence, config.split, _colour_camera(config), config.passes)
     if online_rgbd and config.odometry.source == RGBD:
-        frames = sequence_rgbd_frames(path, stamps, config.sequence, config.split, _colour_camera(config), config.passes, path_times)
+        frames = sequence_rgbd_frames(replay, stamps, path_times)
         none = OdometryTrack(
             torch.eye(4, dtype=torch.float64).repeat(len(stamps), 1, 1), torch.zeros(len(stamps), dtype=torch.bool), RGBD_ONLINE, from_camera=True
         )
         return _with_frames(simulated_events(path, run, track=none), frames)
-    track = sequence_track(config.odometry, path, stamps, config.sequence, config.split, _colour_camera(config), config.passes, path_times)
+    track = sequence_track(config.odometry, replay, stamps, path_times)
     return simulated_events(path, run, track=track)
 
 

@@ -21,7 +21,7 @@ from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.depth_measurement import render_depth_image
 from locnerf.geometry import opengl_to_opencv, relative_pose, rotation_error_deg, se3_exp, translation_error
-from locnerf.odometry.sequence import OdometrySourceConfig, sequence_rgbd_frames, sequence_track
+from locnerf.odometry.sequence import OdometrySourceConfig, RecordedReplay, sequence_rgbd_frames, sequence_track
 from locnerf.odometry.tracks import OdometryTrack
 from locnerf.render import PinholeIntrinsics
 from locnerf.sim.events import ImageEvent
@@ -189,12 +189,13 @@ def test_a_kidnapped_camera_reaches_the_rgbd_odometry_but_a_recorded_file_is_ref
     path = read_sequence_path(folder, "all", 1, speed=1.0, odom_rate=30.0, frame_rate=30.0)
     config = ScenarioConfig(duration=0.1, image_rate=15.0, vio={"rate": 30.0}, kidnap_at=0.05, kidnap_shift=4 / 30)
     stamps, path_times = run_stamps(path, config), run_path_times(path, config)
+    replay = RecordedReplay(path, folder, "all")
     assert torch.allclose(path_times * 30, torch.tensor([0.0, 1.0, 6.0, 7.0], dtype=torch.float64))
-    camera = list(sequence_rgbd_frames(path, stamps, folder, "all", path_times=path_times))
-    sixth = next(sequence_rgbd_frames(path, path_times[2:3], folder, "all"))
+    camera = list(sequence_rgbd_frames(replay, stamps, path_times))
+    sixth = next(sequence_rgbd_frames(replay, path_times[2:3]))
     assert [e.stamp for e in camera] == stamps.tolist() and np.array_equal(camera[2].frame.pixels, sixth.frame.pixels)
-    assert not np.array_equal(camera[2].frame.pixels, next(sequence_rgbd_frames(path, stamps[2:3], folder, "all")).frame.pixels)
-    track = sequence_track(OdometrySourceConfig(source="rgbd", rgbd={"resume_after": 1}), path, stamps, folder, "all", path_times=path_times)
+    assert not np.array_equal(camera[2].frame.pixels, next(sequence_rgbd_frames(replay, stamps[2:3])).frame.pixels)
+    track = sequence_track(OdometrySourceConfig(source="rgbd", rgbd={"resume_after": 1}), replay, stamps, path_times)
     # The jump (5 frames in one stamp) does not match: a gap, and the odometry resumes from the camera's new frame, at its last pose.
     assert track.from_camera and track.valid.tolist() == [True, True, False, True] and track.report["resumed"] == 1
     step = relative_pose(path.poses_at(path_times[2:3]), path.poses_at(path_times[3:4]))
@@ -203,9 +204,9 @@ def test_a_kidnapped_camera_reaches_the_rgbd_odometry_but_a_recorded_file_is_ref
     assert scenario.kidnap_tick == 2
     past_the_end = run_path_times(path, config.model_copy(update={"kidnap_shift": 6 / 30}))  # up to frame 9 of 8: it would wrap to frame 0
     with pytest.raises(LocnerfInputError, match=r"reaches path time 0\.300 s, past its last frame at 0\.233 s.* or --passes 2 or more"):
-        sequence_track(OdometrySourceConfig(source="rgbd"), path, stamps, folder, "all", path_times=past_the_end)
+        sequence_track(OdometrySourceConfig(source="rgbd"), replay, stamps, past_the_end)
     bounced = read_sequence_path(folder, "all", 1, speed=1.0, odom_rate=30.0, frame_rate=30.0, passes=2)
-    assert len(list(sequence_rgbd_frames(bounced, stamps, folder, "all", passes=2, path_times=past_the_end))) == 4
+    assert len(list(sequence_rgbd_frames(RecordedReplay(bounced, folder, "all", passes=2), stamps, past_the_end))) == 4
     recorded = OdometryTrack(track.poses, track.valid, "file:recorded.txt")
     with pytest.raises(LocnerfInputError, match=r"odometry file:recorded\.txt with a kidnapping at 0\.05 s: a recorded trajectory follows the recorded camera"):
         build_scenario(path, config, MapNormalization(), track=recorded)
