@@ -30,6 +30,7 @@ from locnerf.field.protocol import RadianceMap
 from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import WORLD, open_map
+from locnerf.odometry.sequence import RGBD, SYNTHETIC
 from locnerf.sim.kidnap import KidnapJump, kidnap_shift_for_jump
 from locnerf.sim.paths import CameraPath, WorldPath, read_sequence_path
 from locnerf.sim.scenario import ScenarioConfig, build_scenario, check_timeline
@@ -210,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--kidnap-at with the bag {args.sequence}: a bag's camera moved as recorded, it cannot be kidnapped")
     if args.kidnap_jump is not None and args.kidnap_at is None:
         raise LocnerfInputError(f"--kidnap-jump {args.kidnap_jump[0]} {args.kidnap_jump[1]} without --kidnap-at: expected the time of the kidnapping too")
-    if args.kidnap_at is not None and args.odometry not in ("synthetic", "rgbd"):
+    if args.kidnap_at is not None and args.odometry not in (SYNTHETIC, RGBD):
         raise LocnerfInputError(
             f"--kidnap-at with --odometry {args.odometry}: a recorded trajectory follows the recorded camera and cannot see the simulated jump;"
             " expected --odometry synthetic, or rgbd (computed from the frames the kidnapped camera delivers)"

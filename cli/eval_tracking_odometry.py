@@ -30,7 +30,7 @@ from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting
 from locnerf.odometry.sequence import SYNTHETIC, OdometrySourceConfig, RecordedReplay, sequence_track
 from locnerf.odometry.tracks import OdometryTrack
 from locnerf.sim.paths import CameraPath, SequencePath
-from locnerf.sim.scenario import ScenarioConfig, TrackingScenario, run_path_times, run_stamps
+from locnerf.sim.scenario import ScenarioConfig, TrackingScenario, run_times
 
 REPORT = "tracking.json"
 
@@ -94,7 +94,7 @@ def offline_track(args: argparse.Namespace, path: CameraPath, scenario_config: S
     config = odometry_source(args)
     if config.source == SYNTHETIC or not isinstance(path, SequencePath):
         return None
-    stamps, path_times = run_stamps(path, scenario_config), run_path_times(path, scenario_config)
+    stamps, path_times = run_times(path, scenario_config)
     return sequence_track(config, RecordedReplay(path, args.sequence, args.split, colour_camera, args.passes), stamps, path_times)
 
 

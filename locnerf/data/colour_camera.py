@@ -98,6 +98,15 @@ class ColourCalibration:
     inconsistency_after: float
     points: int
 
+    def record(self, seconds: float) -> dict:
+        """Its figures for a map's metadata, with the ``seconds`` it took."""
+        return {
+            "inconsistency_before": round(self.inconsistency_before, 5),
+            "inconsistency_after": round(self.inconsistency_after, 5),
+            "points": self.points,
+            "seconds": round(seconds, 1),
+        }
+
 
 def _grey(images: torch.Tensor, blur: float) -> torch.Tensor:
     """(K, H, W) luma of (K, H, W, 3) RGB in [0, 1] (ITU-R BT.601 weights), Gaussian-blurred by ``blur`` pixels
@@ -358,11 +367,5 @@ def sfm_training_frames(data: object, split: str, downscale: int | None, stride:
             return read_dataset(data, split=split, downscale=downscale, stride=stride, poses="sfm"), metadata
         T_depth_colour = calibration.T_depth_colour
         metadata[METADATA_KEY] = T_depth_colour.tolist()
-        metadata["colour_calibration"] = {
-            "poses": "dslam",
-            "inconsistency_before": round(calibration.inconsistency_before, 5),
-            "inconsistency_after": round(calibration.inconsistency_after, 5),
-            "points": calibration.points,
-            "seconds": round(time.monotonic() - started, 1),
-        }
+        metadata["colour_calibration"] = {"poses": "dslam", **calibration.record(time.monotonic() - started)}
     return read_dataset(data, split=split, downscale=downscale, stride=stride, poses="sfm", T_depth_colour=T_depth_colour), metadata

@@ -249,9 +249,6 @@ def with_photometric_depth_camera(images: PosedImages) -> tuple[PosedImages, dic
         "method": "photometric",
         "translation_m": float(calibration.T_depth_colour[:3, 3].norm()),
         "rotation_deg": math.degrees(float(rotation_angle(calibration.T_depth_colour[:3, :3]))),
-        "inconsistency_before": round(calibration.inconsistency_before, 5),
-        "inconsistency_after": round(calibration.inconsistency_after, 5),
-        "points": calibration.points,
-        "seconds": round(time.monotonic() - started, 1),
+        **calibration.record(time.monotonic() - started),
     }
     return replace(images, T_cam_depth=pose_inverse(calibration.T_depth_colour)), {METADATA_KEY: calibration.T_depth_colour.tolist(), METADATA_RECORD: record}

@@ -129,10 +129,11 @@ def run_stamps(path: CameraPath, config: ScenarioConfig) -> torch.Tensor:
     return _timeline(path, config).stamps
 
 
-def run_path_times(path: CameraPath, config: ScenarioConfig) -> torch.Tensor:
-    """(K,) float64 time along the path where the camera is at each of :func:`run_stamps` (jumping at a kidnapping):
-    which recorded frame it delivers there."""
-    return _timeline(path, config).path_times
+def run_times(path: CameraPath, config: ScenarioConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """(K,) float64 :func:`run_stamps`, and (K,) float64 the time along the path where the camera is at each
+    (jumping at a kidnapping): which recorded frame it delivers there."""
+    timeline = _timeline(path, config)
+    return timeline.stamps, timeline.path_times
 
 
 def check_timeline(path: CameraPath, config: ScenarioConfig) -> None:

@@ -228,12 +228,7 @@ def _on_colour_camera(images: PosedImages, config: BuildConfig) -> tuple[PosedIm
         return images, {"colour_calibration": {"skipped": str(error)}}
     metadata = {
         METADATA_KEY: calibration.T_depth_colour.tolist(),
-        "colour_calibration": {
-            "inconsistency_before": round(calibration.inconsistency_before, 5),
-            "inconsistency_after": round(calibration.inconsistency_after, 5),
-            "points": calibration.points,
-            "seconds": round(time.monotonic() - started, 1),
-        },
+        "colour_calibration": calibration.record(time.monotonic() - started),
     }
     return with_colour_camera(images, calibration.T_depth_colour), metadata
 

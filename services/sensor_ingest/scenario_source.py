@@ -26,7 +26,7 @@ from locnerf.odometry.sequence import RGBD, RGBD_ONLINE, SYNTHETIC, OdometrySour
 from locnerf.odometry.tracks import OdometryTrack
 from locnerf.sim.events import GroundTruthEvent, RgbdFrameEvent, SensorEvent
 from locnerf.sim.paths import CameraPath, SequencePath, WorldPath, read_sequence_path
-from locnerf.sim.scenario import ScenarioConfig, run_path_times, run_stamps
+from locnerf.sim.scenario import ScenarioConfig, run_times
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.stream import simulated_events
 from locnerf.sim.trajectory import FigureEightTrajectory
@@ -100,7 +100,7 @@ def scenario_events(config: ScenarioSourceConfig, seed: int, online_rgbd: bool =
         if config.odometry.source != SYNTHETIC or config.passes != 1:
             raise LocnerfInputError("sequence 'world': expected the synthetic odometry and one pass (real odometry needs recorded frames)")
         return simulated_events(path, run)
-    stamps, path_times = run_stamps(path, run), run_path_times(path, run)
+    stamps, path_times = run_times(path, run)
     replay = RecordedReplay(path, config.sequence, config.split, _colour_camera(config), config.passes)
     if online_rgbd and config.odometry.source == RGBD:
         frames = sequence_rgbd_frames(replay, stamps, path_times)

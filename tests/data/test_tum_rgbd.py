@@ -26,7 +26,7 @@ from locnerf.odometry.tracks import OdometryTrack
 from locnerf.render import PinholeIntrinsics
 from locnerf.sim.events import ImageEvent
 from locnerf.sim.paths import read_sequence_path
-from locnerf.sim.scenario import ScenarioConfig, build_scenario, run_path_times, run_stamps
+from locnerf.sim.scenario import ScenarioConfig, build_scenario, run_times
 from locnerf.sim.world import ProceduralWorld
 from locnerf_cli.main import main
 from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
@@ -188,7 +188,7 @@ def test_a_kidnapped_camera_reaches_the_rgbd_odometry_but_a_recorded_file_is_ref
     folder, poses = tum_folder
     path = read_sequence_path(folder, "all", 1, speed=1.0, odom_rate=30.0, frame_rate=30.0)
     config = ScenarioConfig(duration=0.1, image_rate=15.0, vio={"rate": 30.0}, kidnap_at=0.05, kidnap_shift=4 / 30)
-    stamps, path_times = run_stamps(path, config), run_path_times(path, config)
+    stamps, path_times = run_times(path, config)
     replay = RecordedReplay(path, folder, "all")
     assert torch.allclose(path_times * 30, torch.tensor([0.0, 1.0, 6.0, 7.0], dtype=torch.float64))
     camera = list(sequence_rgbd_frames(replay, stamps, path_times))
@@ -202,7 +202,7 @@ def test_a_kidnapped_camera_reaches_the_rgbd_odometry_but_a_recorded_file_is_ref
     assert float(translation_error(relative_pose(track.poses[1:2], track.poses[3:4]), step)) < 0.005
     scenario = build_scenario(path, config, MapNormalization(), track=track)
     assert scenario.kidnap_tick == 2
-    past_the_end = run_path_times(path, config.model_copy(update={"kidnap_shift": 6 / 30}))  # up to frame 9 of 8: it would wrap to frame 0
+    past_the_end = run_times(path, config.model_copy(update={"kidnap_shift": 6 / 30}))[1]  # up to frame 9 of 8: it would wrap to frame 0
     with pytest.raises(LocnerfInputError, match=r"reaches path time 0\.300 s, past its last frame at 0\.233 s.* or --passes 2 or more"):
         sequence_track(OdometrySourceConfig(source="rgbd"), replay, stamps, past_the_end)
     bounced = read_sequence_path(folder, "all", 1, speed=1.0, odom_rate=30.0, frame_rate=30.0, passes=2)
