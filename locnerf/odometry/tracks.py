@@ -79,8 +79,9 @@ def rgbd_track(frames: PosedImages, frame_indices: list[int], stamps: torch.Tens
     frame ``frame_indices[k]`` taken at ``stamps[k]``: the frames are fed one by one to
     :class:`~locnerf.odometry.rgbd.RgbdOdometry` as a camera would deliver them.
 
-    The odometry measures the depth camera; poses are carried to the frames' colour camera
-    (``frames.T_cam_depth``, when the colour camera was calibrated).
+    The odometry measures the depth camera, with the colour registered onto its grid through the two
+    cameras' placement (``frames.T_cam_depth``, when the colour camera was calibrated); poses are carried
+    to the colour camera.
 
     Raises:
         DatasetError: the frames have no depth images.
@@ -89,17 +90,18 @@ def rgbd_track(frames: PosedImages, frame_indices: list[int], stamps: torch.Tens
         raise DatasetError(f"{frames.source}: RGB-D odometry needs depth images, and these frames have none")
     odometry = RgbdOdometry(config, frames.depth_intrinsics)
     T_depth_cam = torch.eye(4, dtype=torch.float64)
+    T_cam_depth = None
     if frames.T_cam_depth is not None:
         offset = frames.T_cam_depth.double().clone()
         offset[:3, 3] /= frames.normalization.scale
-        T_depth_cam = pose_inverse(offset)
+        T_depth_cam, T_cam_depth = pose_inverse(offset), offset.numpy()
     poses = torch.eye(4, dtype=torch.float64).repeat(len(stamps), 1, 1)
     valid = torch.zeros(len(stamps), dtype=torch.bool)
     depth_scale = 1.0 / frames.normalization.scale
     for k, (stamp, index) in enumerate(zip(stamps.tolist(), frame_indices)):
         rgb = np.ascontiguousarray((frames.images[index].numpy() * 255.0 + 0.5).astype(np.uint8))
         depth = (frames.depths[index] * depth_scale).numpy().astype(np.float32)
-        pose = odometry.step(stamp, register_colour(rgb, frames.intrinsics, frames.depth_intrinsics), depth)
+        pose = odometry.step(stamp, register_colour(rgb, frames.intrinsics, frames.depth_intrinsics, depth, T_cam_depth), depth)
         if pose is not None:
             poses[k], valid[k] = pose @ T_depth_cam, True
     report = {"kind": config.kind, **odometry.counters.as_dict()}

@@ -4,7 +4,7 @@ A camera without VIO (a RealSense-class RGB-D camera) gives colour and depth fra
 :class:`OdometryStage` turns them into odometry on its own thread: :meth:`OdometryStage.submit`
 hands a frame over without waiting (the release of the other events and the pose stream never wait
 for it), the thread decimates the depth image to at most ``max_width`` pixels across (320×240 of a
-640×480 camera), resamples the colour image onto that grid
+640×480 camera), resamples the colour image onto that grid through the two cameras' placement
 (:func:`~locnerf.odometry.rgbd.register_colour`), aligns it to the last tracked frame with OpenCV's
 dense odometry (:class:`~locnerf.odometry.rgbd.RgbdOdometry`) and publishes the colour camera's pose
 ``T_odom_cam = T_odom_depth · T_depth_cam`` at the frame's stamp, at the camera's rate.
@@ -146,8 +146,9 @@ class OdometryStage:
         grid = depth.intrinsics.decimated(stride)
         if self._odometry is None:  # one chain of poses: a frame of another size later is refused by step
             self._odometry = RgbdOdometry(self.config.rgbd, grid)
-        rgb = register_colour(frame.pixels, frame.intrinsics, grid)
-        pose = self._odometry.step(event.stamp, rgb, depth.millimetres[::stride, ::stride].astype(np.float32) * np.float32(1e-3))
+        depth_m = depth.millimetres[::stride, ::stride].astype(np.float32) * np.float32(1e-3)
+        T_cam_depth = None if depth.T_cam_depth is None else depth.T_cam_depth.double().numpy()
+        pose = self._odometry.step(event.stamp, register_colour(frame.pixels, frame.intrinsics, grid, depth_m, T_cam_depth), depth_m)
         if pose is not None and depth.T_cam_depth is not None:
             pose = pose @ pose_inverse(depth.T_cam_depth.double())
         with self._lock:

@@ -18,6 +18,7 @@ from locnerf.data.detect import dataset_format, read_dataset
 from locnerf.data.trajectory_files import read_trajectory, write_tum
 from locnerf.data.tum_rgbd import associate, read_tum_rgbd
 from locnerf.errors import DatasetError, LocnerfInputError
+from locnerf.field.map_file import save_map
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.depth_measurement import render_depth_image
 from locnerf.geometry import opengl_to_opencv, relative_pose, rotation_error_deg, se3_exp, translation_error
@@ -30,6 +31,7 @@ from locnerf.sim.scenario import ScenarioConfig, build_scenario, run_times
 from locnerf.sim.world import ProceduralWorld
 from locnerf_cli.main import main
 from locnerf_services.sensor_ingest.__main__ import IngestConfig, sensor_events
+from tests.field.test_grid_and_map_file import _tiny_map
 
 CAMERA = PinholeIntrinsics.from_fov(160, 120, math.radians(60))
 FRAMES = 9
@@ -101,6 +103,14 @@ def test_the_ingest_replays_it_and_locnerf_odometry_tracks_it(tum_folder, tmp_pa
     assert report["drift"]["ape_translation_max"] < 0.005
     noise = report["step_noise"]  # the per-step error between 8 tracked frames: 7 steps, millimetres and tenths of a degree
     assert noise["steps"] == 7 and max(noise["translation_sigma"]) < 0.005 and max(noise["rotation_sigma"]) < math.radians(0.4)
+
+
+def test_locnerf_odometry_refuses_a_map_without_a_colour_camera(tum_folder, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """``--map`` lends the odometry the colour camera's placement the map records; a map that records none is refused, named."""
+    folder, _ = tum_folder
+    plain = save_map(_tiny_map(torch.Generator().manual_seed(0)), tmp_path / "plain.locmap")
+    assert main(["odometry", str(folder), "--split", "all", "--downscale", "1", "--map", str(plain), "--out", str(tmp_path / "o.txt")]) == 2
+    assert f"--map {plain}: the map records no colour camera" in caplog.text and not (tmp_path / "o.txt").exists()
 
 
 def test_a_malformed_list_is_refused_naming_file_and_line(tmp_path: Path) -> None:
