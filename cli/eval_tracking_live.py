@@ -22,6 +22,7 @@ import torch
 
 from locnerf.bags.reader import bag_extent, is_bag
 from locnerf.data.colour_camera import check_map_poses, map_colour_camera
+from locnerf.data.map_lens import MapLens, lens_of_map
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import BACK_ON_TRACK, ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_record, live_summary
@@ -49,8 +50,10 @@ SETTLE_S = 3.0  # wall seconds after the ingest's last message, at most, for the
 QUIET_S = 0.75  # the filter has finished once no pose or update result came for this long (and a status after them)
 
 
-def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str, float], colour_camera: torch.Tensor | None = None) -> dict[str, Any]:
-    """The ingest's ``scenario`` fields (``ScenarioSourceConfig``) for the command's arguments and the map's colour camera."""
+def scenario_settings(
+    args: argparse.Namespace, image_rate: float, vio: dict[str, float], colour_camera: torch.Tensor | None = None, lens: MapLens | None = None
+) -> dict[str, Any]:
+    """The ingest's ``scenario`` fields (``ScenarioSourceConfig``) for the command's arguments and the map's colour camera and lens."""
     return {
         "sequence": args.sequence if args.sequence == WORLD else str(Path(args.sequence).resolve()),
         "split": args.split,
@@ -63,6 +66,7 @@ def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str
         "kidnap_shift": getattr(args, "kidnap_shift", None),
         "vio": vio,
         "T_depth_colour": None if colour_camera is None else colour_camera.tolist(),
+        "lens": None if lens is None else lens.model_dump(),
         "passes": args.passes,
         "poses": args.poses,
         "odometry": eval_tracking_odometry.odometry_source(args).model_dump(),
@@ -70,7 +74,12 @@ def scenario_settings(args: argparse.Namespace, image_rate: float, vio: dict[str
 
 
 def service_configs(
-    args: argparse.Namespace, image_rate: float, vio: dict[str, float], events: int, colour_camera: torch.Tensor | None = None
+    args: argparse.Namespace,
+    image_rate: float,
+    vio: dict[str, float],
+    events: int,
+    colour_camera: torch.Tensor | None = None,
+    lens: MapLens | None = None,
 ) -> ServiceConfigs:
     """The ingest, filter and worker configurations of the live run.
 
@@ -85,7 +94,7 @@ def service_configs(
     if args.sequence != WORLD and is_bag(args.sequence):
         source = {"source": "rosbag", "rosbag": {"path": str(Path(args.sequence).resolve())}}
     else:
-        scenario = scenario_settings(args, image_rate, vio, colour_camera)
+        scenario = scenario_settings(args, image_rate, vio, colour_camera, lens)
         source = {"source": "scenario", "scenario": scenario, "odometry": OnlineOdometryConfig(rgbd=scenario["odometry"]["rgbd"])}
     ingest = IngestConfig(prefetch_events=events, prefill=True, speed=1.0, **source, **common)
     loop = FilterLoopConfig(updates_per_image=args.updates_per_image, odometry_rate=args.odom_rate)
@@ -195,7 +204,7 @@ def run_live(
         events = bag_extent(args.sequence)[1] + 16  # at most one event per message
     else:
         events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
-    observed = record_run(service_configs(args, image_rate, vio, events, colour_camera), args.logs, sensor_seconds)
+    observed = record_run(service_configs(args, image_rate, vio, events, colour_camera, lens_of_map(radiance_map)), args.logs, sensor_seconds)
     report = live_summary(observed, radiance_map.normalization, args.kidnap_at, criterion, series=args.json, back_on_track=back_on_track)
     report |= {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}
     return live_odometry_outputs(args, observed, report, radiance_map.normalization, criterion)

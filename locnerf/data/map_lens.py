@@ -16,6 +16,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import torch
+from pydantic import BaseModel, ConfigDict
 
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError
@@ -47,6 +48,46 @@ def map_lens(radiance_map: object) -> tuple[PinholeIntrinsics, np.ndarray] | Non
     return intrinsics, distortion
 
 
+class MapLens(BaseModel):
+    """The lens an SfM map records and the pinhole camera it was trained with: what a query image is resampled through.
+
+    ``lens``: the full-size pinhole part of the estimated camera; ``distortion``: its OpenCV (k1, k2, p1, p2);
+    ``camera``: the map's own pinhole camera (its ``default_intrinsics``). A plain record, so that a service (the
+    ingest replaying a data set for a live run) can be handed it in its configuration.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    lens: PinholeIntrinsics
+    distortion: tuple[float, float, float, float]
+    camera: PinholeIntrinsics
+
+    def apply(self, frames: PosedImages) -> PosedImages:
+        """``frames`` resampled through the lens onto the map's camera, at the frames' own size.
+
+        Raises:
+            DatasetError: if the frames' aspect ratio is not the lens's.
+        """
+        width, height = frames.intrinsics.width, frames.intrinsics.height
+        if abs(width * self.lens.height - height * self.lens.width) > max(width, height):
+            raise DatasetError(f"{frames.source}: images of {width}x{height} do not have the map's camera's aspect ({self.lens.width}x{self.lens.height})")
+        raw = self.lens.scaled(width / self.lens.width).matrix().numpy()
+        target = self.camera.scaled(width / self.camera.width)
+        distortion = np.asarray(self.distortion, dtype=np.float64)
+        map_x, map_y = cv2.initUndistortRectifyMap(raw, distortion, None, target.matrix().numpy(), (width, height), cv2.CV_32FC1)
+        images = [cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR) for image in frames.images.numpy()]  # the maps once, not per image
+        return replace(frames, images=torch.from_numpy(np.stack(images)), intrinsics=target)
+
+
+def lens_of_map(radiance_map: object) -> MapLens | None:
+    """The :class:`MapLens` of a map whose metadata records one (:func:`map_lens`); None for other maps."""
+    lens = map_lens(radiance_map)
+    if lens is None:
+        return None
+    intrinsics, distortion = lens
+    return MapLens(lens=intrinsics, distortion=tuple(float(v) for v in distortion), camera=radiance_map.default_intrinsics)
+
+
 def on_map_lens(frames: PosedImages, radiance_map: object) -> PosedImages:
     """``frames`` resampled onto ``radiance_map``'s camera through the lens its metadata records (:func:`map_lens`);
     as they are for maps that record none.
@@ -57,15 +98,5 @@ def on_map_lens(frames: PosedImages, radiance_map: object) -> PosedImages:
     Raises:
         DatasetError: if the frames' aspect ratio is not the lens's.
     """
-    lens = map_lens(radiance_map)
-    if lens is None:
-        return frames
-    intrinsics, distortion = lens
-    width, height = frames.intrinsics.width, frames.intrinsics.height
-    if abs(width * intrinsics.height - height * intrinsics.width) > max(width, height):
-        raise DatasetError(f"{frames.source}: images of {width}x{height} do not have the map's camera's aspect ({intrinsics.width}x{intrinsics.height})")
-    raw = intrinsics.scaled(width / intrinsics.width).matrix().numpy()
-    target = radiance_map.default_intrinsics.scaled(width / radiance_map.default_intrinsics.width)
-    map_x, map_y = cv2.initUndistortRectifyMap(raw, distortion, None, target.matrix().numpy(), (width, height), cv2.CV_32FC1)
-    images = [cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR) for image in frames.images.numpy()]  # the maps once, not per image
-    return replace(frames, images=torch.from_numpy(np.stack(images)), intrinsics=target)
+    lens = lens_of_map(radiance_map)
+    return frames if lens is None else lens.apply(frames)

@@ -63,7 +63,9 @@ class OdometrySourceConfig(BaseModel):
 @dataclass(frozen=True)
 class RecordedReplay:
     """The recorded frames a replay of ``path`` shows: ``folder``'s ``split`` with the colour camera ``T_depth_colour``
-    (4, 4, map units; None: the data set's own) in ``passes`` passes, as the path was read."""
+    (4, 4, map units; None: the data set's own) in ``passes`` passes, as the path was read (the colour on the data set's own
+    camera model even for a map that records a lens: on the kitchen's SfM-built maps the odometry erred more through the lens,
+    docs/RESULTS.md)."""
 
     path: SequencePath
     folder: str | Path

@@ -23,6 +23,7 @@ import torch
 from locnerf.data import PosedImages, read_nerf_synthetic
 from locnerf.data.colour_camera import metric_offset, with_colour_camera
 from locnerf.data.detect import dataset_format, read_dataset
+from locnerf.data.map_lens import MapLens
 from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.filter.depth_measurement import DepthObservation
 from locnerf.geometry import relative_pose, se3_exp, se3_log
@@ -219,18 +220,22 @@ def read_sequence_frames(
     T_depth_colour: torch.Tensor | None = None,
     passes: int = 1,
     poses: str = "dslam",
+    lens: MapLens | None = None,
 ) -> PosedImages:
     """A data-set folder's ``split`` (any format of :func:`locnerf.data.read_dataset`) in metres, the
     poses moved onto the colour camera ``T_depth_colour`` (4, 4, map units) when given, replayed
     ``passes`` times forward and backward (:func:`bounce_order`); ``poses``: 7-Scenes' ground truth
     (``dslam`` | ``sfm``, :mod:`locnerf.data.sfm_poses`; with ``sfm`` the poses are the colour camera's
-    and ``T_depth_colour`` places the depth camera)."""
+    and ``T_depth_colour`` places the depth camera); ``lens``: the colour images resampled through the lens
+    an SfM map records onto its camera (:class:`locnerf.data.map_lens.MapLens`), as the map's queries are."""
     if dataset_format(folder) == "nerf_synthetic":
         frames = read_nerf_synthetic(folder, split=split, background=background, downscale=downscale or 1)
     else:
         frames = read_dataset(folder, split=split, downscale=downscale, poses=poses, T_depth_colour=T_depth_colour if poses == "sfm" else None)
     if T_depth_colour is not None and frames.T_cam_depth is None:
         frames = with_colour_camera(frames, T_depth_colour)
+    if lens is not None:
+        frames = lens.apply(frames)
     if passes != 1:
         frames = frames.subset(bounce_order(len(frames), passes))
     depths = frames.depths / frames.normalization.scale if frames.depths is not None else None
@@ -249,6 +254,7 @@ def read_sequence_path(
     T_depth_colour: torch.Tensor | None = None,
     passes: int = 1,
     poses: str = "dslam",
+    lens: MapLens | None = None,
 ) -> SequencePath:
     """A data-set folder's ``split`` (any format of :func:`locnerf.data.read_dataset`) as a
     :class:`SequencePath`, poses (and depth images, where the data set has them) in the data set's metric frame.
@@ -257,6 +263,6 @@ def read_sequence_path(
     frames are composited on (other formats have none); ``frame_rate`` replays the frames at the
     capture's own rate instead of ``speed``; ``T_depth_colour`` (4, 4, map units), the colour camera
     the map was built for (:mod:`locnerf.data.colour_camera`), moves the poses onto it; ``passes`` > 1
-    replays the frames forward and backward in turn (:func:`bounce_order`); ``poses`` as :func:`read_sequence_frames`.
+    replays the frames forward and backward in turn (:func:`bounce_order`); ``poses`` and ``lens`` as :func:`read_sequence_frames`.
     """
-    return SequencePath(read_sequence_frames(folder, split, downscale, background, T_depth_colour, passes, poses), speed, odom_rate, frame_rate)
+    return SequencePath(read_sequence_frames(folder, split, downscale, background, T_depth_colour, passes, poses, lens), speed, odom_rate, frame_rate)

@@ -20,6 +20,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.data.colour_camera import ColourCameraSetting, colour_camera_matrix
+from locnerf.data.map_lens import MapLens
 from locnerf.data.sfm_poses import PoseSource
 from locnerf.errors import LocnerfInputError
 from locnerf.odometry.sequence import RGBD, RGBD_ONLINE, SYNTHETIC, OdometrySourceConfig, RecordedReplay, sequence_rgbd_frames, sequence_track
@@ -53,6 +54,10 @@ class ScenarioSourceConfig(BaseModel):
     kidnap_at: float | None = Field(None, gt=0, description="Seconds: the camera jumps ahead along the path, unseen by the odometry.")
     kidnap_shift: float | None = Field(None, gt=0, description="Seconds along the path the kidnapping jumps (as offline); None: about half a loop.")
     T_depth_colour: ColourCameraSetting
+    lens: MapLens | None = Field(
+        None,
+        description="The lens an SfM map records (its metadata) and the map's camera: the replayed colour images are resampled through it, as the map's queries are.",
+    )
     passes: int = Field(1, ge=1, description="Data-set folder: replay the frames this many times, forward and backward in turn.")
     poses: PoseSource = Field("dslam", description="7-Scenes folder: the ground truth, dslam (its pose files) or sfm (pgt_sfm/); the map's.")
     odometry: OdometrySourceConfig = Field(
@@ -75,6 +80,7 @@ def camera_path(config: ScenarioSourceConfig) -> CameraPath:
         T_depth_colour=_colour_camera(config),
         passes=config.passes,
         poses=config.poses,
+        lens=config.lens,
     )
 
 

@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 import torch
 
+from locnerf.data.map_lens import MapLens
 from locnerf.geometry import make_pose, pose_inverse, so3_exp
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent
-from locnerf.sim.paths import WorldPath
+from locnerf.sim.paths import WorldPath, read_sequence_frames
 from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig, VioConfig
 from locnerf.sim.trajectory import FigureEightTrajectory
@@ -91,3 +93,25 @@ def test_a_sequence_on_its_maps_colour_camera_sends_the_depth_cameras_offset(sha
     torch.testing.assert_close(images[0].depth.T_cam_depth, pose_inverse(offset))
     with pytest.raises(ValueError, match="T_depth_colour: expected a rigid transform"):
         ScenarioSourceConfig(**settings, T_depth_colour=(2.0 * offset).tolist())
+
+
+def test_a_sequence_for_an_sfm_built_map_is_served_through_the_maps_lens(shared_data):
+    """With the lens an SfM map records, the served images are the offline queries': each resampled through the lens
+    onto the map's camera (``MapLens.apply``, the resampling ``read_on_map_camera`` gives single image and global), and
+    they carry the map's camera; the record crosses the service configuration as plain data."""
+    kitchen = shared_data / "7scenes_redkitchen"
+    lens = MapLens(
+        lens=PinholeIntrinsics(fx=522.3, fy=522.3, cx=319.5, cy=239.5, width=640, height=480),
+        distortion=(-0.03, 0.0, 0.0, 0.0),
+        camera=PinholeIntrinsics(fx=130.6, fy=130.6, cx=79.5, cy=59.5, width=160, height=120),
+    )
+    settings = {"sequence": str(kitchen), "split": "test", "downscale": 8, "frame_rate": 30.0, "duration": 0.2, "image_rate": 5.0}
+    scenario = ScenarioSourceConfig.model_validate({**settings, "lens": lens.model_dump()})
+    images = [e for e in sensor_events(IngestConfig(source="scenario", scenario=scenario)) if isinstance(e, ImageEvent)]
+    plain = [e for e in sensor_events(IngestConfig(source="scenario", scenario=ScenarioSourceConfig(**settings))) if isinstance(e, ImageEvent)]
+    assert images and images[0].intrinsics == lens.camera.scaled(80 / 160)
+    frames = read_sequence_frames(kitchen, "test", 8)
+    expected = lens.apply(frames.subset([0])).images[0]
+    served = torch.from_numpy(images[0].pixels).float() / 255.0
+    assert float((served - expected).abs().max()) <= 0.5 / 255 + 1e-6  # the 8-bit rounding of what is sent
+    assert not np.array_equal(images[0].pixels, plain[0].pixels)
