@@ -13,7 +13,7 @@ from locnerf.bags.reader import bag_extent, is_bag
 from locnerf.bags.scenario import bag_scenario
 from locnerf.config import load_config, preset
 from locnerf.data.colour_camera import check_map_poses, map_colour_camera
-from locnerf.data.map_lens import lens_of_map
+from locnerf.data.map_lens import map_lens
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import (
@@ -145,7 +145,7 @@ def camera_path(args: argparse.Namespace, radiance_map: RadianceMap) -> CameraPa
         colour_camera,
         passes=args.passes,
         poses=check_map_poses(radiance_map, args.poses),
-        lens=lens_of_map(radiance_map),
+        lens=map_lens(radiance_map),
     )
 
 

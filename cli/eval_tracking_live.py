@@ -22,7 +22,7 @@ import torch
 
 from locnerf.bags.reader import bag_extent, is_bag
 from locnerf.data.colour_camera import check_map_poses, map_colour_camera
-from locnerf.data.map_lens import MapLens, lens_of_map
+from locnerf.data.map_lens import MapLens, map_lens
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.tracking import BACK_ON_TRACK, ConvergenceConfig
 from locnerf.eval.tracking_live import LiveObservations, live_record, live_summary
@@ -204,7 +204,7 @@ def run_live(
         events = bag_extent(args.sequence)[1] + 16  # at most one event per message
     else:
         events = int(sensor_seconds * (2 * vio["rate"] + image_rate)) + 16
-    observed = record_run(service_configs(args, image_rate, vio, events, colour_camera, lens_of_map(radiance_map)), args.logs, sensor_seconds)
+    observed = record_run(service_configs(args, image_rate, vio, events, colour_camera, map_lens(radiance_map)), args.logs, sensor_seconds)
     report = live_summary(observed, radiance_map.normalization, args.kidnap_at, criterion, series=args.json, back_on_track=back_on_track)
     report |= {"live": True, "workers": args.workers, "image_rate": image_rate, "logs": str(args.logs)}
     return live_odometry_outputs(args, observed, report, radiance_map.normalization, criterion)

@@ -31,23 +31,6 @@ def lens_record(intrinsics: PinholeIntrinsics, distortion: np.ndarray) -> dict:
     return {"intrinsics": intrinsics.model_dump(), "distortion": [float(v) for v in distortion]}
 
 
-def map_lens(radiance_map: object) -> tuple[PinholeIntrinsics, np.ndarray] | None:
-    """The lens (full-size pinhole part, distortion (4,)) a map's ``sfm`` metadata records; None for other maps.
-
-    Raises:
-        DatasetError: for an entry that is not a camera and four distortion coefficients.
-    """
-    record = ((getattr(radiance_map, "metadata", None) or {}).get("sfm") or {}).get(CAMERA_KEY)
-    if record is None:
-        return None
-    try:
-        intrinsics = PinholeIntrinsics(**record["intrinsics"])
-        distortion = np.asarray(record["distortion"], dtype=np.float64).reshape(4)
-    except (KeyError, TypeError, ValueError) as error:
-        raise DatasetError(f"map metadata sfm.{CAMERA_KEY}: expected intrinsics and 4 distortion coefficients, got {record!r} ({error})") from None
-    return intrinsics, distortion
-
-
 class MapLens(BaseModel):
     """The lens an SfM map records and the pinhole camera it was trained with: what a query image is resampled through.
 
@@ -79,12 +62,20 @@ class MapLens(BaseModel):
         return replace(frames, images=torch.from_numpy(np.stack(images)), intrinsics=target)
 
 
-def lens_of_map(radiance_map: object) -> MapLens | None:
-    """The :class:`MapLens` of a map whose metadata records one (:func:`map_lens`); None for other maps."""
-    lens = map_lens(radiance_map)
-    if lens is None:
+def map_lens(radiance_map: object) -> MapLens | None:
+    """The :class:`MapLens` of a map whose ``sfm`` metadata records a lens (with the map's ``default_intrinsics``); None for other maps.
+
+    Raises:
+        DatasetError: for an entry that is not a camera and four distortion coefficients.
+    """
+    record = ((getattr(radiance_map, "metadata", None) or {}).get("sfm") or {}).get(CAMERA_KEY)
+    if record is None:
         return None
-    intrinsics, distortion = lens
+    try:
+        intrinsics = PinholeIntrinsics(**record["intrinsics"])
+        distortion = np.asarray(record["distortion"], dtype=np.float64).reshape(4)
+    except (KeyError, TypeError, ValueError) as error:
+        raise DatasetError(f"map metadata sfm.{CAMERA_KEY}: expected intrinsics and 4 distortion coefficients, got {record!r} ({error})") from None
     return MapLens(lens=intrinsics, distortion=tuple(float(v) for v in distortion), camera=radiance_map.default_intrinsics)
 
 
@@ -98,5 +89,5 @@ def on_map_lens(frames: PosedImages, radiance_map: object) -> PosedImages:
     Raises:
         DatasetError: if the frames' aspect ratio is not the lens's.
     """
-    lens = lens_of_map(radiance_map)
+    lens = map_lens(radiance_map)
     return frames if lens is None else lens.apply(frames)

@@ -77,9 +77,10 @@ class RecordedReplay:
         """The split's frames at the odometry's working size (:data:`ODOMETRY_DOWNSCALE`)."""
         return read_sequence_frames(self.folder, self.split, ODOMETRY_DOWNSCALE, T_depth_colour=self.T_depth_colour)
 
-    def shown(self, path_times: torch.Tensor, count: int) -> list[int]:
-        """The split's frame (of ``count``) the camera delivers at each of ``path_times`` (K,) (:func:`_replayed_frames`)."""
-        return _replayed_frames(self.path, path_times, count, self.passes)
+    def shown(self, stamps: torch.Tensor, path_times: torch.Tensor | None, count: int) -> list[int]:
+        """The split's frame (of ``count``) the camera delivers at each of ``stamps`` (K,), where it is at ``path_times``
+        (K,) along the path (None: the stamps) (:func:`_replayed_frames`)."""
+        return _replayed_frames(self.path, stamps if path_times is None else path_times, count, self.passes)
 
 
 def sequence_track(config: OdometrySourceConfig, replay: RecordedReplay, stamps: torch.Tensor, path_times: torch.Tensor | None = None) -> OdometryTrack | None:
@@ -99,7 +100,7 @@ def sequence_track(config: OdometrySourceConfig, replay: RecordedReplay, stamps:
         extrinsic = None if config.T_body_cam is None else torch.tensor(config.T_body_cam, dtype=torch.float64)
         return file_track(config.source, stamps, config.file_format, extrinsic, config.max_gap)
     frames = replay.frames()
-    return rgbd_track(frames, replay.shown(stamps if path_times is None else path_times, len(frames)), stamps, config.rgbd)
+    return rgbd_track(frames, replay.shown(stamps, path_times, len(frames)), stamps, config.rgbd)
 
 
 def sequence_rgbd_frames(replay: RecordedReplay, stamps: torch.Tensor, path_times: torch.Tensor | None = None) -> Iterator[RgbdFrameEvent]:
@@ -114,7 +115,7 @@ def sequence_rgbd_frames(replay: RecordedReplay, stamps: torch.Tensor, path_time
     frames = replay.frames()
     if frames.depths is None or frames.depth_intrinsics is None:
         raise DatasetError(f"{frames.source}: RGB-D odometry needs depth images, and these frames have none")
-    indices = replay.shown(stamps if path_times is None else path_times, len(frames))
+    indices = replay.shown(stamps, path_times, len(frames))
     return (
         RgbdFrameEvent(stamp, ImageEvent(stamp, rgb8(frames.images[index]), frames.intrinsics, posed_depth_frame(frames, index)))
         for stamp, index in zip(stamps.tolist(), indices)

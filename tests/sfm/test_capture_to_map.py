@@ -72,7 +72,8 @@ def test_rgbd_capture_to_a_metric_map_and_its_cache(capture, tmp_path):
     path = save_map(radiance_map, tmp_path / "world_sfm.locmap")
     loaded = load_map(path, "cpu")
     assert loaded.metadata[METRIC_FRAME_KEY]["metric"] and metric_frame_problem(loaded.metadata) is None
-    lens, distortion = map_lens(loaded)  # the SfM camera, which query images are resampled through (locnerf.data.map_lens)
+    recorded = map_lens(loaded)  # the SfM camera, which query images are resampled through (locnerf.data.map_lens)
+    lens, distortion = recorded.lens, np.asarray(recorded.distortion)
     assert (lens.width, lens.height) == (240, 180) and distortion.shape == (4,)
     assert loaded.default_intrinsics.fx == pytest.approx(lens.fx / 4)
 
