@@ -21,13 +21,15 @@ from tqdm import tqdm
 
 from locnerf.bags.reader import summarize
 from locnerf.bags.writer import BagWriter, EventWriter
-from locnerf.data.colour_camera import map_colour_camera
+from locnerf.data.colour_camera import check_map_poses, map_colour_camera
 from locnerf.data.euroc import read_euroc
+from locnerf.data.map_lens import map_lens
 from locnerf.errors import LocnerfInputError
 from locnerf.maps.source import open_map
 from locnerf.odometry.sequence import SYNTHETIC
 from locnerf_cli import eval_tracking_odometry
 from locnerf_cli.eval_tracking import vio_config
+from locnerf_cli.flags import add_poses_argument
 from locnerf_cli.tracking_flags import add_odometry_arguments
 from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
 from locnerf_services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
@@ -55,8 +57,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_odometry_arguments(export)
     eval_tracking_odometry.add_source_arguments(export)
     export.add_argument(
-        "--map", default=None, help="map whose colour camera the poses are moved onto (7-Scenes: the map built with a calibrated colour camera)"
+        "--map",
+        default=None,
+        help="the map the bag is for: the poses move onto its colour camera (7-Scenes: the map built with a calibrated colour camera), "
+        "and the colour images are resampled through the lens an SfM-built map records onto its camera, as its queries are",
     )
+    add_poses_argument(export)
     export.add_argument("--compression", choices=("", "png", "jpeg"), default="", help="colour images as CompressedImage (default: raw rgb8 Image)")
     export.add_argument("--seed", type=int, default=0, help="seed of the odometry noise (and image noise), as the replay's")
     export.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -97,7 +103,8 @@ def export_events(args: argparse.Namespace):
             raise LocnerfInputError(f"{args.data}: a EuRoC folder is exported with its simulated odometry; --odometry and --passes are for sequence folders")
         config = EurocSourceConfig(path=str(args.data), camera=args.camera, downscale=float(args.downscale or 1), vio=vio)
         return euroc_events(read_euroc(args.data, args.camera, None), config, generator)
-    colour_camera = None if args.map is None else map_colour_camera(open_map(args.map, torch.device("cpu")))
+    radiance_map = None if args.map is None else open_map(args.map, torch.device("cpu"))
+    colour_camera = None if radiance_map is None else map_colour_camera(radiance_map)
     odometry = eval_tracking_odometry.odometry_source(argparse.Namespace(**vars(args), sequence=str(args.data)))
     config = ScenarioSourceConfig(
         sequence=str(args.data.resolve()),
@@ -109,6 +116,8 @@ def export_events(args: argparse.Namespace):
         image_rate=args.image_rate,
         vio=vio,
         T_depth_colour=None if colour_camera is None else colour_camera.tolist(),
+        lens=None if radiance_map is None else map_lens(radiance_map),
+        poses=args.poses if radiance_map is None else check_map_poses(radiance_map, args.poses),
         passes=args.passes,
         odometry=odometry,
     )  # the other fields keep the replay's defaults

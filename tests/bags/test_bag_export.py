@@ -1,6 +1,6 @@
 """``locnerf bag export`` and ``bag info`` on real data: the first frames of the EuRoC micro sequence
 written as a bag read back as exactly the stream its folder replay (the ingest's ``source = "euroc"``
-with the same odometry model) sends."""
+with the same odometry model) sends; a kitchen excerpt for an SfM-built map, as the live replay for that map sends it."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import json
 import logging
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -16,13 +17,16 @@ import torch
 
 from locnerf.bags.events import bag_events
 from locnerf.data.euroc import read_euroc
+from locnerf.data.map_lens import MapLens
 from locnerf.data.trajectory_files import write_tum
-from locnerf.geometry.se3 import make_pose
+from locnerf.geometry.se3 import make_pose, pose_inverse
 from locnerf.geometry.so3 import so3_exp
 from locnerf.messages.stamps import nanoseconds_from_seconds
 from locnerf.odometry.sequence import OdometrySourceConfig
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import ImageEvent, OdometryEvent
 from locnerf.sim.sensors import VioConfig
+from locnerf_cli import bag as bag_cli
 from locnerf_cli.main import main
 from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
 from locnerf_services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
@@ -112,3 +116,45 @@ def test_euroc_export_refuses_another_odometry(shared_data: Path, tmp_path, capl
     with caplog.at_level(logging.ERROR):
         assert main(["bag", "export", str(shared_data / "euroc_micro_V1_01"), "--out", str(tmp_path / "bag"), "--odometry", "rgbd"]) == 2
     assert "a EuRoC folder is exported with its simulated odometry" in caplog.text and not (tmp_path / "bag").exists()
+
+
+def sfm_built_map(lens: MapLens, T_depth_colour: torch.Tensor) -> SimpleNamespace:
+    """What ``open_map`` gives for a kitchen map built by ``map build --sfm``: its metadata (the pose source, the
+    depth camera's placement, the lens SfM estimated) and its pinhole camera."""
+    record = {"intrinsics": lens.lens.model_dump(), "distortion": list(lens.distortion)}
+    metadata = {"poses": "sfm", "T_depth_colour": T_depth_colour.tolist(), "sfm": {"camera": record}}
+    return SimpleNamespace(metadata=metadata, default_intrinsics=lens.camera)
+
+
+def test_a_kitchen_bag_for_an_sfm_built_map_is_the_stream_its_live_replay_sends(shared_data: Path, tmp_path, capsys, caplog, monkeypatch):
+    """``--map`` of an SfM-built map: the bag's colour images are resampled through the map's lens onto its camera, its
+    CameraInfo is that camera, its ground truth the SfM poses the map lives among, and its depth camera placed by the
+    map: the very events the live replay for that map (``eval tracking --live --poses sfm``) sends. A map built from
+    the other ground truth is refused, naming both."""
+    kitchen = shared_data / "7scenes_redkitchen"
+    lens = MapLens(
+        lens=PinholeIntrinsics(fx=522.3, fy=522.3, cx=319.5, cy=239.5, width=640, height=480),
+        distortion=(-0.03, 0.0, 0.0, 0.0),
+        camera=PinholeIntrinsics(fx=130.6, fy=130.6, cx=79.5, cy=59.5, width=160, height=120),
+    )
+    offset = make_pose(so3_exp(torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64)), torch.tensor([0.03, 0.0, 0.0], dtype=torch.float64))
+    monkeypatch.setattr(bag_cli, "open_map", lambda path, device: sfm_built_map(lens, offset))
+    flags = ["--split", "test", "--downscale", "8", "--frame-rate", "30", "--duration", "0.4", "--image-rate", "5", "--map", "kitchen_sfm.locmap"]
+    assert main(["bag", "export", str(kitchen), "--out", str(tmp_path / "bag"), *flags, "--poses", "sfm", "--quiet"]) == 0
+    capsys.readouterr()
+    replay = ScenarioSourceConfig(
+        sequence=str(kitchen.resolve()), split="test", downscale=8, frame_rate=30.0, duration=0.4, image_rate=5.0,
+        vio=VioConfig(rotation_noise=math.radians(0.057)), T_depth_colour=offset.tolist(), lens=lens, poses="sfm",
+    )  # fmt: skip
+    events = list(scenario_events(replay, 0))
+    read = list(bag_events(tmp_path / "bag"))
+    assert_same_events(read, events)
+    images = [event for event in read if isinstance(event, ImageEvent)]
+    assert images and images[0].intrinsics == lens.camera.scaled(80 / 160) and images[0].depth is not None
+    torch.testing.assert_close(images[0].depth.T_cam_depth, pose_inverse(offset))
+    plain = [event for event in scenario_events(replay.model_copy(update={"lens": None}), 0) if isinstance(event, ImageEvent)]
+    assert not np.array_equal(images[0].pixels, plain[0].pixels), "resampled through the lens"
+
+    with caplog.at_level(logging.ERROR):
+        assert main(["bag", "export", str(kitchen), "--out", str(tmp_path / "other"), *flags, "--quiet"]) == 2
+    assert "--poses dslam: the map was built from sfm poses" in caplog.text and not (tmp_path / "other").exists()
