@@ -23,7 +23,6 @@ from locnerf.geometry.se3 import make_pose, pose_inverse
 from locnerf.geometry.so3 import so3_exp
 from locnerf.messages.stamps import nanoseconds_from_seconds
 from locnerf.odometry.sequence import OdometrySourceConfig
-from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import ImageEvent, OdometryEvent
 from locnerf.sim.sensors import VioConfig
 from locnerf_cli import bag as bag_cli
@@ -31,6 +30,7 @@ from locnerf_cli.main import main
 from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
 from locnerf_services.sensor_ingest.scenario_source import ScenarioSourceConfig, scenario_events
 from tests.bags.test_bag_events import assert_same_events
+from tests.services.test_scenario_source import KITCHEN_SFM_LENS
 
 
 def euroc_excerpt(euroc: Path, folder: Path, frames: int) -> Path:
@@ -132,11 +132,7 @@ def test_a_kitchen_bag_for_an_sfm_built_map_is_the_stream_its_live_replay_sends(
     map: the very events the live replay for that map (``eval tracking --live --poses sfm``) sends. A map built from
     the other ground truth is refused, naming both."""
     kitchen = shared_data / "7scenes_redkitchen"
-    lens = MapLens(
-        lens=PinholeIntrinsics(fx=522.3, fy=522.3, cx=319.5, cy=239.5, width=640, height=480),
-        distortion=(-0.03, 0.0, 0.0, 0.0),
-        camera=PinholeIntrinsics(fx=130.6, fy=130.6, cx=79.5, cy=59.5, width=160, height=120),
-    )
+    lens = KITCHEN_SFM_LENS
     offset = make_pose(so3_exp(torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64)), torch.tensor([0.03, 0.0, 0.0], dtype=torch.float64))
     monkeypatch.setattr(bag_cli, "open_map", lambda path, device: sfm_built_map(lens, offset))
     flags = ["--split", "test", "--downscale", "8", "--frame-rate", "30", "--duration", "0.4", "--image-rate", "5", "--map", "kitchen_sfm.locmap"]

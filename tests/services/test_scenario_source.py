@@ -95,16 +95,20 @@ def test_a_sequence_on_its_maps_colour_camera_sends_the_depth_cameras_offset(sha
         ScenarioSourceConfig(**settings, T_depth_colour=(2.0 * offset).tolist())
 
 
+KITCHEN_SFM_LENS = MapLens(
+    lens=PinholeIntrinsics(fx=522.3, fy=522.3, cx=319.5, cy=239.5, width=640, height=480),
+    distortion=(-0.03, 0.0, 0.0, 0.0),
+    camera=PinholeIntrinsics(fx=130.6, fy=130.6, cx=79.5, cy=59.5, width=160, height=120),
+)
+"""A lens like the one ``map build --sfm`` estimates for the kitchen, and a 160×120 map camera."""
+
+
 def test_a_sequence_for_an_sfm_built_map_is_served_through_the_maps_lens(shared_data):
     """With the lens an SfM map records, the served images are the offline queries': each resampled through the lens
     onto the map's camera (``MapLens.apply``, the resampling ``read_on_map_camera`` gives single image and global), and
     they carry the map's camera; the record crosses the service configuration as plain data."""
     kitchen = shared_data / "7scenes_redkitchen"
-    lens = MapLens(
-        lens=PinholeIntrinsics(fx=522.3, fy=522.3, cx=319.5, cy=239.5, width=640, height=480),
-        distortion=(-0.03, 0.0, 0.0, 0.0),
-        camera=PinholeIntrinsics(fx=130.6, fy=130.6, cx=79.5, cy=59.5, width=160, height=120),
-    )
+    lens = KITCHEN_SFM_LENS
     settings = {"sequence": str(kitchen), "split": "test", "downscale": 8, "frame_rate": 30.0, "duration": 0.2, "image_rate": 5.0}
     scenario = ScenarioSourceConfig.model_validate({**settings, "lens": lens.model_dump()})
     images = [e for e in sensor_events(IngestConfig(source="scenario", scenario=scenario)) if isinstance(e, ImageEvent)]
