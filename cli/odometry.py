@@ -26,7 +26,6 @@ import cv2
 import torch
 
 from locnerf.data.colour_camera import colour_camera_of
-from locnerf.data.detect import read_dataset
 from locnerf.data.trajectory_files import write_tum
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.trajectory_output import odometry_drift
@@ -66,22 +65,19 @@ def run(args: argparse.Namespace) -> int:
     if args.frame_rate <= 0 or args.every < 1 or args.threads < 1:
         raise LocnerfInputError(f"--frame-rate {args.frame_rate}, --every {args.every}, --threads {args.threads}: expected positive values")
     cv2.setNumThreads(args.threads)
-    if args.map is None:
-        frames = read_dataset(args.data, split=args.split, downscale=args.downscale, poses=args.poses)
-        truth = frames.normalization.map_to_metric(frames.depth_poses().double())
-    else:
+    T_depth_colour = None
+    if args.map is not None:
         T_depth_colour = colour_camera_of(read_map_info(args.map)[1].metadata)
         if T_depth_colour is None:
             raise LocnerfInputError(
                 f"--map {args.map}: the map records no colour camera (T_depth_colour); expected a map built from RGB-D frames posed at the depth camera"
             )
-        frames = read_sequence_frames(args.data, args.split, args.downscale, T_depth_colour=T_depth_colour, poses=args.poses)
-        truth = frames.T_world_cam.double()
+    frames = read_sequence_frames(args.data, args.split, args.downscale, T_depth_colour=T_depth_colour, poses=args.poses)  # metric
     indices = list(range(0, len(frames), args.every))
     stamps = torch.tensor(indices, dtype=torch.float64) / args.frame_rate
     track = rgbd_track(frames, indices, stamps, RgbdOdometryConfig(kind=args.kind, fast=args.fast))
     write_tum(args.out, stamps[track.valid], track.poses[track.valid])
-    truth = truth[indices]
+    truth = frames.T_world_cam.double()[indices]
     drift = odometry_drift(stamps, track.poses, track.valid, truth)
     drift.pop("series")
     noise = step_noise(track.poses, track.valid, truth)

@@ -75,7 +75,8 @@ def file_track(
 
 
 def rgbd_track(frames: PosedImages, frame_indices: list[int], stamps: torch.Tensor, config: RgbdOdometryConfig) -> OdometryTrack:
-    """RGB-D odometry computed on ``frames`` (metric, with depth) in the order ``frame_indices`` (K,),
+    """RGB-D odometry computed on ``frames`` (with depth, in metres: depth images, poses and ``T_cam_depth``, as
+    :func:`locnerf.sim.paths.read_sequence_frames` gives them, whatever map units their normalization names) in the order ``frame_indices`` (K,),
     frame ``frame_indices[k]`` taken at ``stamps[k]``: the frames are fed one by one to
     :class:`~locnerf.odometry.rgbd.RgbdOdometry` as a camera would deliver them.
 
@@ -92,15 +93,12 @@ def rgbd_track(frames: PosedImages, frame_indices: list[int], stamps: torch.Tens
     T_depth_cam = torch.eye(4, dtype=torch.float64)
     T_cam_depth = None
     if frames.T_cam_depth is not None:
-        offset = frames.T_cam_depth.double().clone()
-        offset[:3, 3] /= frames.normalization.scale
-        T_depth_cam, T_cam_depth = pose_inverse(offset), offset.numpy()
+        T_depth_cam, T_cam_depth = pose_inverse(frames.T_cam_depth.double()), frames.T_cam_depth.double().numpy()
     poses = torch.eye(4, dtype=torch.float64).repeat(len(stamps), 1, 1)
     valid = torch.zeros(len(stamps), dtype=torch.bool)
-    depth_scale = 1.0 / frames.normalization.scale
     for k, (stamp, index) in enumerate(zip(stamps.tolist(), frame_indices)):
         rgb = np.ascontiguousarray((frames.images[index].numpy() * 255.0 + 0.5).astype(np.uint8))
-        depth = (frames.depths[index] * depth_scale).numpy().astype(np.float32)
+        depth = frames.depths[index].numpy().astype(np.float32)
         pose = odometry.step(stamp, register_colour(rgb, frames.intrinsics, frames.depth_intrinsics, depth, T_cam_depth), depth)
         if pose is not None:
             poses[k], valid[k] = pose @ T_depth_cam, True

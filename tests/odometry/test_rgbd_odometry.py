@@ -118,11 +118,13 @@ def test_registration_counts_the_baseline_between_the_cameras() -> None:
     assert shared_centre >= 3.0 * with_placement
 
 
-def test_a_track_of_a_depth_camera_beside_the_colour_camera_follows_the_colour_camera() -> None:
+@pytest.mark.parametrize("map_units_per_metre", [1.0, 2.0])
+def test_a_track_of_a_depth_camera_beside_the_colour_camera_follows_the_colour_camera(map_units_per_metre: float) -> None:
     """``rgbd_track`` on frames whose depth camera sits 5 cm and 2° from the colour camera (``T_cam_depth``, as a
     Kinect's): the odometry measures the depth camera and the track comes out as the colour camera's motion.
     (On this world's smooth textures the ICP term carries RGB_DEPTH whether or not the colour is registered through
-    the placement: the registration itself is checked by the test above.)"""
+    the placement: the registration itself is checked by the test above.) The frames are metric, as
+    ``read_sequence_frames`` gives them, whatever map units their normalization names: a scale of 2 changes nothing."""
     world = ProceduralWorld.default()
     start = world.sample_camera_pose(torch.Generator().manual_seed(2)).double()
     poses = torch.stack([start @ se3_exp(STEP * k) for k in range(5)])
@@ -131,8 +133,8 @@ def test_a_track_of_a_depth_camera_beside_the_colour_camera_follows_the_colour_c
     images = torch.stack([world.render_image(pose.float(), CAMERA).clamp(0, 1) for pose in poses])
     depths = torch.stack([render_depth_image(world.render_surface, pose @ T_cam_depth, depth_camera).depth.float() for pose in poses])
     frames = PosedImages(
-        images=images, T_world_cam=poses, intrinsics=CAMERA, near=0.05, far=20.0, normalization=world.normalization,
-        names=[str(k) for k in range(5)], scene_bounds=torch.tensor([[-5.0, -5.0, -5.0], [5.0, 5.0, 5.0]]),
+        images=images, T_world_cam=poses, intrinsics=CAMERA, near=0.05, far=20.0,
+        normalization=world.normalization.model_copy(update={"scale": map_units_per_metre}), names=[str(k) for k in range(5)], scene_bounds=torch.tensor([[-5.0, -5.0, -5.0], [5.0, 5.0, 5.0]]),
         depths=depths, depth_intrinsics=depth_camera, T_cam_depth=T_cam_depth,
     )  # fmt: skip
     stamps = torch.arange(5, dtype=torch.float64) / 15
