@@ -29,6 +29,7 @@ from locnerf.maps.source import open_map
 from locnerf.odometry.sequence import SYNTHETIC
 from locnerf_cli import eval_tracking_odometry
 from locnerf_cli.eval_tracking import vio_config
+from locnerf_cli.eval_tracking_live import scenario_settings
 from locnerf_cli.flags import add_poses_argument
 from locnerf_cli.tracking_flags import add_odometry_arguments
 from locnerf_services.sensor_ingest.euroc_source import EurocSourceConfig, euroc_events
@@ -104,23 +105,12 @@ def export_events(args: argparse.Namespace):
         config = EurocSourceConfig(path=str(args.data), camera=args.camera, downscale=float(args.downscale or 1), vio=vio)
         return euroc_events(read_euroc(args.data, args.camera, None), config, generator)
     radiance_map = None if args.map is None else open_map(args.map, torch.device("cpu"))
-    colour_camera = None if radiance_map is None else map_colour_camera(radiance_map)
-    odometry = eval_tracking_odometry.odometry_source(argparse.Namespace(**vars(args), sequence=str(args.data)))
-    config = ScenarioSourceConfig(
-        sequence=str(args.data.resolve()),
-        split=args.split,
-        downscale=args.downscale,
-        speed=args.speed,
-        frame_rate=args.frame_rate,
-        duration=args.duration,
-        image_rate=args.image_rate,
-        vio=vio,
-        T_depth_colour=None if colour_camera is None else colour_camera.tolist(),
-        lens=None if radiance_map is None else map_lens(radiance_map),
-        poses=args.poses if radiance_map is None else check_map_poses(radiance_map, args.poses),
-        passes=args.passes,
-        odometry=odometry,
-    )  # the other fields keep the replay's defaults
+    colour_camera, lens = None, None
+    if radiance_map is not None:
+        check_map_poses(radiance_map, args.poses)
+        colour_camera, lens = map_colour_camera(radiance_map), map_lens(radiance_map)
+    replay = argparse.Namespace(**vars(args), sequence=str(args.data))
+    config = ScenarioSourceConfig.model_validate(scenario_settings(replay, args.image_rate, vio.model_dump(), colour_camera, lens))  # as eval tracking --live
     return scenario_events(config, args.seed)
 
 
