@@ -1,4 +1,4 @@
-"""``locnerf map build|eval|ceiling|render|compare|add-surface-distance|prune|info``: build a map from posed images, measure it, look at it."""
+"""``locnerf map build|eval|ceiling|score-trials|render|compare|add-surface-distance|prune|info``: build a map from posed images, measure it, look at it."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.plots import plot_images_beside_renders
 from locnerf.eval.reprojection_ceiling import CeilingConfig, reprojection_ceiling
+from locnerf.eval.trial_renders import score_trial_renders
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import load_map, read_map_info, save_map
@@ -76,6 +77,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     evaluate.add_argument("--json", action="store_true", help="print JSON")
     add_poses_argument(evaluate)
     evaluate.set_defaults(func=run_eval)
+
+    trials = commands.add_parser(
+        "score-trials",
+        help="PSNR/SSIM of each trial of a `locnerf eval single-image|global --json` report, rendered from where it ended and from its "
+        "ground truth: does the map itself prefer the estimate where a trial failed?",
+    )
+    trials.add_argument("map", help="the map file the report was measured on")
+    trials.add_argument("report", type=Path, help="JSON report of locnerf eval single-image|global --json")
+    trials.add_argument("--data", required=True, help="the report's data-set folder")
+    trials.add_argument("--split", default="test", help="the split the report's views come from")
+    trials.add_argument("--downscale", type=int)
+    trials.add_argument("--device", default="auto")
+    trials.add_argument("--json", action="store_true", help="print JSON")
+    add_poses_argument(trials)
+    trials.set_defaults(func=run_score_trials)
 
     render = commands.add_parser("render", help="render one view of a map to a PNG")
     which = render.add_mutually_exclusive_group(required=True)
@@ -217,6 +233,44 @@ def run_eval(args: argparse.Namespace) -> int:
     if "training_frames" in scores:
         trained = scores["training_frames"]
         print(f"train-set PSNR (not held out) {trained['psnr']:.2f} dB  SSIM {trained['ssim']:.4f}  over {trained['views']} views the map was built from")
+    return 0
+
+
+def _report_trials(path: Path) -> list[dict]:
+    """The ``trials`` of a ``locnerf eval`` JSON report, or a clear error."""
+    if not path.is_file():
+        raise FileNotFoundError(f"report {path}: no such file")
+    try:
+        report = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise LocnerfInputError(f"report {path}: not JSON ({error})") from error
+    trials = report.get("trials") if isinstance(report, dict) else None
+    if not isinstance(trials, list) or not trials or not all(isinstance(trial, dict) for trial in trials):
+        raise LocnerfInputError(f"report {path}: expected a JSON object with a non-empty list of trials (locnerf eval single-image|global --json)")
+    return trials
+
+
+def run_score_trials(args: argparse.Namespace) -> int:
+    device = resolve_device(args.device)
+    trials = _report_trials(args.report)
+    radiance_map = load_map(args.map, device)
+    views = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split, poses=args.poses)
+    scores = score_trial_renders(radiance_map.render_rays, views, trials, device)
+    if args.json:
+        print(json.dumps(scores))
+        return 0
+    for row in scores["trials"]:
+        print(
+            f"{row['name']}  {'success' if row['success'] else 'failure'}  off by {row['translation_error']:.3f} (truth units) and {row['rotation_error_deg']:.2f} deg  "
+            f"PSNR from the estimate {row['psnr_estimate']:.2f} dB, from the truth {row['psnr_truth']:.2f} dB"
+        )
+    for kind in ("failures", "successes"):
+        if scores[kind] is not None:
+            summary = scores[kind]
+            print(
+                f"{kind}: {summary['trials']}, PSNR(estimate) - PSNR(truth) median {summary['psnr_gain_median_db']:.2f} dB "
+                f"({summary['psnr_gain_min_db']:.2f} to {summary['psnr_gain_max_db']:.2f}), the estimate renders better in {summary['estimate_renders_better']}"
+            )
     return 0
 
 

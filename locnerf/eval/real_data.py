@@ -177,7 +177,9 @@ def _original(run: LoggedRun | None, truth: torch.Tensor) -> dict | None:
 
 
 def trial_record(view: View, result: TrialResult) -> dict:
-    """JSON-ready record of one trial, with the original's logged figures for the same start."""
+    """JSON-ready record of one trial, with the original's logged figures for the same start. ``estimate`` and
+    ``truth`` are (4, 4) camera-to-world poses in the map's frame and units (OpenGL camera axes): where the trial
+    ended and where it should have, for looking at a failure in the map itself (``estimate`` None: no final pose)."""
     record = {
         "frame": view.frame,
         "name": view.name,
@@ -189,6 +191,8 @@ def trial_record(view: View, result: TrialResult) -> dict:
         "seconds": result.seconds,
         "forward_passes": result.forward_passes,
         "rays": result.rays,
+        "estimate": None if result.final_pose is None else result.final_pose.double().cpu().tolist(),
+        "truth": view.truth.double().cpu().tolist(),
         "history": {
             "forward_passes": result.history_forward_passes,
             "rays": result.history_rays,

@@ -22,10 +22,13 @@ import pytest
 import torch
 
 from locnerf.data import PosedImages, read_dataset
+from locnerf.data.colour_camera import read_on_map_camera
 from locnerf.data.seven_scenes import depth_points
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.map_file import load_map, save_map
 from locnerf.field.surface_distance import SurfaceDistanceConfig
+from locnerf.geometry import rotation_error_deg, translation_error
+from locnerf.render.image import render_image
 from locnerf.train import BuildConfig, build_map, psnr
 from locnerf_cli.main import main
 from tests.conftest import REPO_ROOT, SHARED_DATA
@@ -167,10 +170,52 @@ def test_relocalization_on_test_frames_scores_every_trial(
         history = trial["history"]
         assert len(history["translation_error"]) == len(history["rays"]) == 6 and history["translation_error"][-1] == trial["translation_error"]
         assert history["rays"] == sorted(history["rays"]) and history["rays"][-1] == trial["rays"] > 0
+        estimate, truth = torch.tensor(trial["estimate"], dtype=torch.float64), torch.tensor(trial["truth"], dtype=torch.float64)
+        assert float(translation_error(estimate, truth)) == pytest.approx(trial["translation_error"], rel=1e-9)  # dSLAM map: map units are metres
+        assert float(rotation_error_deg(estimate, truth)) == pytest.approx(trial["rotation_error_deg"], rel=1e-9, abs=1e-9)
     seeded = [r.getMessage() for r in caplog.records if r.getMessage().startswith("keyframe start:")]
     assert seeded == (["keyframe start: 540 of 600 particles re-drawn around 8 matching keyframes"] * 2 if "keyframes" in config else [])
     tempered = [r.getMessage() for r in caplog.records if r.getMessage().startswith("update tempered")]
     assert (len(tempered) >= 2) if "[tempering]" in (REPO_ROOT / "configs" / config).read_text() else not tempered, tempered
+
+
+def test_score_trials_renders_each_view_from_its_estimate_and_its_truth(
+    tiny_kitchen_map: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """``map score-trials`` on a two-trial global report: each view's PSNR from the estimate and from the truth
+    equals the map rendered at those poses and scored against the camera image here (oracle: render_image and psnr
+    on the views read again), the summaries split failures from successes, and a report whose truth is not the
+    view's pose (another map or ground truth) is refused with the trial's name."""
+    flags = ["--data", str(KITCHEN), "--split", "test", "--downscale", DOWNSCALE]
+    report = run_cli(
+        ["eval", "global", "--map", str(tiny_kitchen_map), *flags, "--trials", "2", "--updates", "3", "--seed", "1", "--device", "cpu", "--json"], capsys
+    )
+    path = tmp_path / "global.json"
+    path.write_text(json.dumps(report))
+    scores = run_cli(["map", "score-trials", str(tiny_kitchen_map), str(path), *flags, "--device", "cpu", "--json"], capsys)
+    radiance_map = load_map(tiny_kitchen_map)
+    views = read_on_map_camera(KITCHEN, radiance_map, "dslam", split="test", downscale=int(DOWNSCALE))
+    assert [row["name"] for row in scores["trials"]] == [trial["name"] for trial in report["trials"]]
+    for row, trial in zip(scores["trials"], report["trials"]):
+        image = views.images[views.names.index(trial["name"])]
+        for key in ("estimate", "truth"):
+            rendered = render_image(radiance_map.render_rays, torch.tensor(trial[key], dtype=torch.float32), views.intrinsics)
+            assert row[f"psnr_{key}"] == pytest.approx(psnr(rendered, image), abs=1e-6)
+    failures = sum(not trial["success"] for trial in report["trials"])
+    assert (scores["failures"] or {"trials": 0})["trials"] == failures and (scores["successes"] or {"trials": 0})["trials"] == 2 - failures
+    report["trials"][0]["truth"][0][3] += 0.01
+    path.write_text(json.dumps(report))
+    with caplog.at_level(logging.ERROR):
+        assert main(["map", "score-trials", str(tiny_kitchen_map), str(path), *flags, "--device", "cpu"]) == 2
+    assert f"trial {report['trials'][0]['name']!r}: its truth is 0.01 map units from the view's pose" in caplog.text
+    report["trials"][0]["truth"][0][3] -= 0.01
+    del report["trials"][0]["estimate"]
+    path.write_text(json.dumps(report))
+    assert main(["map", "score-trials", str(tiny_kitchen_map), str(path), *flags, "--device", "cpu"]) == 2
+    assert f"trial {report['trials'][0]['name']!r}: no 'estimate' pose" in caplog.text
+    path.write_text('{"trials": [')
+    assert main(["map", "score-trials", str(tiny_kitchen_map), str(path), *flags, "--device", "cpu"]) == 2
+    assert f"report {path}: not JSON" in caplog.text
 
 
 def tracking_argv(tiny_kitchen_map: Path, seconds: str, config: str = "kitchen_live.toml") -> list[str]:
