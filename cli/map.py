@@ -18,7 +18,7 @@ from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.plots import plot_images_beside_renders
 from locnerf.eval.reprojection_ceiling import CeilingConfig, reprojection_ceiling
-from locnerf.eval.trial_renders import score_trial_renders
+from locnerf.eval.trial_renders import read_trials_report, score_trial_renders
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.grid_map import GridMap
 from locnerf.field.map_file import load_map, read_map_info, save_map
@@ -236,23 +236,9 @@ def run_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def _report_trials(path: Path) -> list[dict]:
-    """The ``trials`` of a ``locnerf eval`` JSON report, or a clear error."""
-    if not path.is_file():
-        raise FileNotFoundError(f"report {path}: no such file")
-    try:
-        report = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise LocnerfInputError(f"report {path}: not JSON ({error})") from error
-    trials = report.get("trials") if isinstance(report, dict) else None
-    if not isinstance(trials, list) or not trials or not all(isinstance(trial, dict) for trial in trials):
-        raise LocnerfInputError(f"report {path}: expected a JSON object with a non-empty list of trials (locnerf eval single-image|global --json)")
-    return trials
-
-
 def run_score_trials(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
-    trials = _report_trials(args.report)
+    trials = read_trials_report(args.report)
     radiance_map = load_map(args.map, device)
     views = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split, poses=args.poses)
     scores = score_trial_renders(radiance_map.render_rays, views, trials, device)

@@ -10,7 +10,9 @@ puts the camera; one the truth renders better is the localizer's miss.
 
 from __future__ import annotations
 
+import json
 import statistics
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -34,6 +36,29 @@ def _checked_pose(trial: dict, key: str) -> torch.Tensor:
     if pose.shape != (4, 4) or not torch.isfinite(pose).all():
         raise LocnerfInputError(f"trial {trial.get('name')!r}: {key!r} is not a finite 4x4 matrix (shape {tuple(pose.shape)})")
     return pose
+
+
+def read_trials_report(path: Path) -> list[dict]:
+    """The ``trials`` of a ``locnerf eval single-image|global --json`` report, each with a finite 4×4 ``estimate``
+    and ``truth`` (checked here, before a map is loaded).
+
+    Raises:
+        FileNotFoundError: no such file.
+        LocnerfInputError: not JSON, no non-empty list of trials, or a trial without both poses.
+    """
+    if not path.is_file():
+        raise FileNotFoundError(f"report {path}: no such file")
+    try:
+        report = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise LocnerfInputError(f"report {path}: not JSON ({error})") from error
+    trials = report.get("trials") if isinstance(report, dict) else None
+    if not isinstance(trials, list) or not trials or not all(isinstance(trial, dict) for trial in trials):
+        raise LocnerfInputError(f"report {path}: expected a JSON object with a non-empty list of trials (locnerf eval single-image|global --json)")
+    for trial in trials:
+        for key in ("truth", "estimate"):
+            _checked_pose(trial, key)
+    return trials
 
 
 def score_trial_renders(render_rays: RenderRays, views: PosedImages, trials: list[dict], device: torch.device | str = "cpu") -> dict[str, Any]:

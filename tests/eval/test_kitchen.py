@@ -24,6 +24,8 @@ import torch
 from locnerf.data import PosedImages, read_dataset
 from locnerf.data.colour_camera import read_on_map_camera
 from locnerf.data.seven_scenes import depth_points
+from locnerf.errors import LocnerfInputError
+from locnerf.eval.trial_renders import score_trial_renders
 from locnerf.field.grid import GridFieldConfig
 from locnerf.field.map_file import load_map, save_map
 from locnerf.field.surface_distance import SurfaceDistanceConfig
@@ -184,11 +186,12 @@ def test_score_trials_renders_each_view_from_its_estimate_and_its_truth(
 ) -> None:
     """``map score-trials`` on a two-trial global report: each view's PSNR from the estimate and from the truth
     equals the map rendered at those poses and scored against the camera image here (oracle: render_image and psnr
-    on the views read again), the summaries split failures from successes, and a report whose truth is not the
-    view's pose (another map or ground truth) is refused with the trial's name."""
+    on the views read again), the summaries split failures from successes, a report whose truth is not the
+    view's pose (another map or ground truth) is refused with the trial's name, and the command refuses a report
+    without estimates and a corrupt file."""
     flags = ["--data", str(KITCHEN), "--split", "test", "--downscale", DOWNSCALE]
     report = run_cli(
-        ["eval", "global", "--map", str(tiny_kitchen_map), *flags, "--trials", "2", "--updates", "3", "--seed", "1", "--device", "cpu", "--json"], capsys
+        ["eval", "global", "--map", str(tiny_kitchen_map), *flags, "--trials", "2", "--updates", "1", "--seed", "1", "--device", "cpu", "--json"], capsys
     )
     path = tmp_path / "global.json"
     path.write_text(json.dumps(report))
@@ -204,14 +207,12 @@ def test_score_trials_renders_each_view_from_its_estimate_and_its_truth(
     failures = sum(not trial["success"] for trial in report["trials"])
     assert (scores["failures"] or {"trials": 0})["trials"] == failures and (scores["successes"] or {"trials": 0})["trials"] == 2 - failures
     report["trials"][0]["truth"][0][3] += 0.01
+    with pytest.raises(LocnerfInputError, match=f"trial {report['trials'][0]['name']!r}: its truth is 0.01 map units from the view's pose"):
+        score_trial_renders(radiance_map.render_rays, views, report["trials"])
+    del report["trials"][0]["estimate"]  # refused before the map is read
     path.write_text(json.dumps(report))
     with caplog.at_level(logging.ERROR):
         assert main(["map", "score-trials", str(tiny_kitchen_map), str(path), *flags, "--device", "cpu"]) == 2
-    assert f"trial {report['trials'][0]['name']!r}: its truth is 0.01 map units from the view's pose" in caplog.text
-    report["trials"][0]["truth"][0][3] -= 0.01
-    del report["trials"][0]["estimate"]
-    path.write_text(json.dumps(report))
-    assert main(["map", "score-trials", str(tiny_kitchen_map), str(path), *flags, "--device", "cpu"]) == 2
     assert f"trial {report['trials'][0]['name']!r}: no 'estimate' pose" in caplog.text
     path.write_text('{"trials": [')
     assert main(["map", "score-trials", str(tiny_kitchen_map), str(path), *flags, "--device", "cpu"]) == 2
