@@ -41,6 +41,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.initialization import gaussian_particles, global_particles, rotation_about_axis, uniform_particles
+from locnerf.filter.motion import PivotNoise
 from locnerf.geometry.se3 import make_pose, se3_exp
 
 logger = logging.getLogger(__name__)
@@ -130,6 +131,16 @@ class RecoveryConfig(BaseModel):
     )
     refine_min_position: float = Field(0.005, ge=0, description="Floor of the refining draws' position standard deviation per axis, map units.")
     refine_min_rotation_deg: float = Field(0.5, ge=0, description="Floor of the refining draws' rotation standard deviation per axis, degrees.")
+    refine_pivot_depth: float = Field(
+        0.0, ge=0, description="Refining draws: distance (map units) ahead of the camera of the point their pivot swings turn about."
+    )
+    refine_pivot_sigma_deg: float = Field(
+        0.0,
+        ge=0,
+        description="Refining draws: σ (degrees) of swings about the camera's x and y axes through the point refine_pivot_depth ahead "
+        "(locnerf.filter.motion.PivotNoise), added to the Gaussian: the turn and the sideways shift that keep the view, along which "
+        "a relocalized cloud closes slowest (0: none).",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> RecoveryConfig:
@@ -429,9 +440,10 @@ def injection_poses(
 
 
 def refining_draws(estimate: ParticleEstimate, count: int, config: RecoveryConfig, generator: torch.Generator) -> torch.Tensor:
-    """``count`` poses ``estimate.pose · Exp(δ)``, δ ~ N(0, refine_scale² Σ + diag(floor²)), Σ the
-    cloud's covariance (6, 6, rotation first) and the floors ``refine_min_rotation_deg`` and
-    ``refine_min_position`` per axis: a Gaussian fitted to the posterior, as in a regularised particle
+    """``count`` poses ``estimate.pose · Exp(δ)``, δ ~ N(0, refine_scale² Σ + diag(floor²) + Π), Σ the
+    cloud's covariance (6, 6, rotation first), the floors ``refine_min_rotation_deg`` and
+    ``refine_min_position`` per axis, and Π the covariance of the pivot swings ``refine_pivot_*`` (none by
+    default; :meth:`locnerf.filter.motion.PivotNoise.covariance`): a Gaussian fitted to the posterior, as in a regularised particle
     filter, so that after a re-seed the cloud closes in on the new place over a few updates (the draws
     shrink with the posterior: coarse to fine) instead of waiting for the prediction noise.
 
@@ -441,4 +453,7 @@ def refining_draws(estimate: ParticleEstimate, count: int, config: RecoveryConfi
     covariance = estimate.covariance.double().cpu()
     floor = torch.tensor([math.radians(config.refine_min_rotation_deg)] * 3 + [config.refine_min_position] * 3, dtype=torch.float64)
     covariance = config.refine_scale**2 * 0.5 * (covariance + covariance.T) + torch.diag(floor**2)
+    if config.refine_pivot_sigma_deg > 0:
+        sigma = torch.full((2,), math.radians(config.refine_pivot_sigma_deg), dtype=torch.float64)
+        covariance = covariance + PivotNoise(config.refine_pivot_depth, sigma).covariance()
     return gaussian_particles(estimate.pose.double().cpu(), covariance, count, generator)

@@ -120,6 +120,30 @@ def test_refining_draws_follow_the_scaled_posterior_covariance_with_floors():
     torch.testing.assert_close(sample / torch.outer(scale, scale), expected / torch.outer(scale, scale), rtol=0, atol=0.03)
 
 
+def test_refining_draws_add_the_pivot_swings_covariance():
+    """With refine_pivot_*, 40000 draws about a tight estimate have the covariance floor² + Π, Π the swings' (a turn θ
+    about the camera's y axis with a shift of depth·θ along x, about x with −depth·θ along y): float64 oracle, the
+    sample covariance within 4 % on the diagonal and 0.03 in correlation, and the turn and shift correlated (+1 for y/x)."""
+    config = RecoveryConfig(refine_min_position=0.001, refine_min_rotation_deg=0.05, refine_pivot_depth=1.5, refine_pivot_sigma_deg=1.0)
+    estimate = estimate_with(torch.zeros(6, 6, dtype=torch.float64))
+    draws = refining_draws(estimate, 40000, config, torch.Generator().manual_seed(5))
+    tangents = se3_log(relative_pose(estimate.pose.expand_as(draws), draws))
+    swing = math.radians(1.0)
+    expected = torch.diag(torch.tensor([math.radians(0.05)] * 3 + [0.001] * 3, dtype=torch.float64) ** 2)
+    expected[0, 0] += swing**2
+    expected[1, 1] += swing**2
+    expected[3, 3] += (1.5 * swing) ** 2
+    expected[4, 4] += (1.5 * swing) ** 2
+    expected[1, 3] = expected[3, 1] = 1.5 * swing**2
+    expected[0, 4] = expected[4, 0] = -1.5 * swing**2
+    sample = torch.cov(tangents.T)
+    torch.testing.assert_close(sample.diagonal(), expected.diagonal(), rtol=0.04, atol=0)
+    scale = expected.diagonal().sqrt()
+    correlation = sample / torch.outer(scale, scale)
+    torch.testing.assert_close(correlation, expected / torch.outer(scale, scale), rtol=0, atol=0.03)
+    assert correlation[1, 3] > 0.95 and correlation[0, 4] < -0.95
+
+
 def test_a_refining_plan_needs_the_covariance():
     plan = InjectionPlan(fraction=0.3, local_radius=0.1, local_yaw=0.0, around_estimate=True)
     bounds = torch.tensor([[-1.0] * 3, [1.0] * 3], dtype=torch.float64)
