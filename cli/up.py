@@ -15,6 +15,7 @@ import argparse
 import json
 import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +37,8 @@ from locnerf_services.sensor_ingest.__main__ import IngestConfig
 from locnerf_services.transport import Inbox
 
 STARTUP_TIMEOUT_S = 180.0
+VIEW_STARTUP_TIMEOUT_S = 120.0
+"""Seconds the view may take to load the map and subscribe before ``locnerf up --view`` gives up."""
 STREAM_MARGIN_S = 60.0
 """Sensor seconds the ingest streams beyond ``--duration`` (stretched by ``--speed``)."""
 ENDLESS_STREAM_S = 24 * 3600.0
@@ -232,13 +235,48 @@ def _finished(record: RunRecord, args: argparse.Namespace, now: float) -> bool:
     return args.until_updates > 0 and merged >= args.until_updates
 
 
-def start_view(supervisor: Any, args: argparse.Namespace, endpoint: str, map_spec: str) -> None:
-    """``locnerf view`` on ``endpoint`` as the supervised process ``view`` (log ``view.log``), drawing ``map_spec``."""
+def start_view(hub: LocalHub, args: argparse.Namespace, map_spec: str) -> bool:
+    """``locnerf view`` on the hub as the supervised process ``view`` (log ``view.log``), drawing ``map_spec``;
+    waits until it is subscribed and recording (its ``alive/view`` token), so that the recording holds the
+    run from its first message. False (and a message on stderr) if the view exited or took longer than
+    ``VIEW_STARTUP_TIMEOUT_S``."""
     from locnerf_cli.view import import_rerun
 
     import_rerun()  # a clear error here rather than a failed process
-    command = [sys.executable, "-m", "locnerf_cli.main", "-v", "view", "--connect", endpoint, "--robot-id", args.robot_id, "--map", map_spec]
-    supervisor.start("view", command + (["--save", str(args.save.resolve())] if args.save is not None else []))
+    command = [sys.executable, "-m", "locnerf_cli.main", "-v", "view", "--connect", hub.endpoint, "--robot-id", args.robot_id, "--map", map_spec]
+    ready = threading.Event()
+    watch = hub.bus.watch_liveliness(keys.key(args.robot_id, keys.VIEW_ALIVE), lambda _key, alive: alive and ready.set())
+    try:
+        hub.supervisor.start("view", command + (["--save", str(args.save.resolve())] if args.save is not None else []))
+        deadline = time.monotonic() + VIEW_STARTUP_TIMEOUT_S
+        while not ready.wait(0.1):
+            if "view" in hub.supervisor.exited() or time.monotonic() > deadline:
+                print(f"the view did not start within {VIEW_STARTUP_TIMEOUT_S:.0f} s: see {args.logs / 'view.log'}", file=sys.stderr)
+                return False
+    finally:
+        watch.close()
+    return True
+
+
+def _follow(hub: LocalHub, inbox: Inbox, record: RunRecord, matcher: GroundTruthMatcher, args: argparse.Namespace, started: float) -> int:
+    """Record what the services publish until the run is finished (0) or a service failed or no pose came (1)."""
+    while True:
+        item = inbox.get(timeout=0.1)
+        if item is not None:
+            try:
+                _observe(record, matcher, item[0], item[1], args.json)
+            except DecodeError as error:
+                print(f"bad {item[0]} message: {error}", file=sys.stderr)
+        now = time.monotonic()
+        if record.first_pose_at is None and now - started > STARTUP_TIMEOUT_S:
+            print(f"no pose within {STARTUP_TIMEOUT_S} s: see the logs in {args.logs}", file=sys.stderr)
+            return 1
+        if _finished(record, args, now):
+            return 0
+        failed = {name: code for name, code in hub.supervisor.exited().items() if code != 0}
+        if failed:
+            print(f"service(s) exited with an error {failed}: see {args.logs}", file=sys.stderr)
+            return 1
 
 
 def run(args: argparse.Namespace) -> int:
@@ -257,32 +295,14 @@ def run(args: argparse.Namespace) -> int:
     record, matcher = RunRecord(), GroundTruthMatcher()
     if not args.json:
         print(f"services connect to {hub.endpoint}; logs in {args.logs}; Ctrl-C stops", flush=True)
-    started = time.monotonic()
     exit_code = 0
     _interrupt_on_signals()
     try:
-        if args.view:
-            start_view(hub.supervisor, args, hub.endpoint, configs.worker.map)
-        start_services(hub.supervisor, configs)
-        while True:
-            item = inbox.get(timeout=0.1)
-            if item is not None:
-                try:
-                    _observe(record, matcher, item[0], item[1], args.json)
-                except DecodeError as error:
-                    print(f"bad {item[0]} message: {error}", file=sys.stderr)
-            now = time.monotonic()
-            if record.first_pose_at is None and now - started > STARTUP_TIMEOUT_S:
-                print(f"no pose within {STARTUP_TIMEOUT_S} s: see the logs in {args.logs}", file=sys.stderr)
-                exit_code = 1
-                break
-            if _finished(record, args, now):
-                break
-            failed = {name: code for name, code in hub.supervisor.exited().items() if code != 0}
-            if failed:
-                print(f"service(s) exited with an error {failed}: see {args.logs}", file=sys.stderr)
-                exit_code = 1
-                break
+        if args.view and not start_view(hub, args, configs.worker.map):
+            exit_code = 1
+        else:
+            start_services(hub.supervisor, configs)
+            exit_code = _follow(hub, inbox, record, matcher, args, started=time.monotonic())
     except KeyboardInterrupt:
         pass
     finally:

@@ -30,6 +30,7 @@ from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import RadianceMap
 from locnerf.maps.cloud import map_cloud
 from locnerf.maps.source import WORLD, open_map
+from locnerf.messages import keys
 from locnerf.messages.schemas import FilterStatus, ImageHeader, ParticleCloud, PoseEstimate, PoseStamped
 from locnerf.render.image import render_image
 from locnerf.sim.world import ProceduralWorld
@@ -182,20 +183,22 @@ def _handlers(view: View) -> dict[str, Callable]:
 def run(args: argparse.Namespace) -> int:
     if args.count < 0 or args.duration < 0 or args.image_width < 8:
         raise LocnerfInputError(f"--count {args.count}, --duration {args.duration}, --image-width {args.image_width}: expected >= 0, >= 0, >= 8")
+    stop = _stop_on_sigterm()
     log = import_rerun()
     radiance_map = open_map(args.map, torch.device("cpu")) if args.map else None
     recording = log.open_recording(args.save, spawn=args.spawn or args.save is None)
-    stop = _stop_on_sigterm()
     bus = open_cli_bus(args.connect)
     feed = ViewFeed(bus, args.robot_id)
     view = View(log, recording, args)
     handlers = _handlers(view)
     deadline = time.monotonic() + args.duration if args.duration > 0 else float("inf")
     images, paths = Periodic(args.image_hz), Periodic(args.trajectory_hz)
+    ready = None
     try:
         with recording:
             if radiance_map is not None:
                 view.show_map(radiance_map)
+            ready = bus.declare_token(keys.key(args.robot_id, keys.VIEW_ALIVE))  # `locnerf up --view` starts the services after this
             while not stop.is_set() and time.monotonic() < deadline and (args.count == 0 or view.poses < args.count):
                 item = feed.next(timeout=0.05)
                 if item is not None:
@@ -211,6 +214,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        if ready is not None:
+            ready.close()
         feed.close()
         bus.close()
     logger.info("view: %d poses logged, %d bad messages, %d dropped", view.poses, feed.bad_messages, feed.dropped)

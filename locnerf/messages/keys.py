@@ -37,6 +37,7 @@ UPDATE_REQUEST = Topic("update/request/{worker_id}", schemas.UpdateRequest.__nam
 UPDATE_RESULT = Topic("update/result", schemas.UpdateResult.__name__, "nerf_worker", "log-likelihoods of a shard")
 UPDATE_REFUSAL = Topic("update/refusal", schemas.UpdateRefusal.__name__, "nerf_worker", "a shard the worker did not compute: wrong map, bad request or failure")
 WORKER_ALIVE = Topic("alive/worker/{worker_id}/{device}/{map_checksum}", "liveliness token", "nerf_worker", "a live worker, its device and its map's checksum")
+VIEW_ALIVE = Topic("alive/view", "liveliness token", "locnerf view", "a view subscribed to the robot's topics and recording them")
 INITIAL_POSE = Topic("command/initial_pose", schemas.InitialPoseCommand.__name__, "operator (locnerf send)", "re-initialise around a pose")
 GLOBAL_LOCALIZATION = Topic("command/global_localization", schemas.GlobalLocalizationCommand.__name__, "operator (locnerf send)", "re-initialise over the map")
 
@@ -53,6 +54,7 @@ TABLE: tuple[Topic, ...] = (
     UPDATE_RESULT,
     UPDATE_REFUSAL,
     WORKER_ALIVE,
+    VIEW_ALIVE,
     INITIAL_POSE,
     GLOBAL_LOCALIZATION,
 )
