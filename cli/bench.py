@@ -108,7 +108,7 @@ def run_render(args: argparse.Namespace) -> int:
         "particles": args.particles,
         "pixels": args.pixels,
         "cloud": args.cloud,
-        "marcher": args.marcher,
+        "marcher": args.marcher if device.type == "cpu" else "torch",  # the compiled loop runs on the CPU only
         "rays": rays,
         "update_seconds": update_seconds,
         "update_hz": 1.0 / update_seconds,

@@ -203,3 +203,20 @@ def test_fused_marcher_threads_give_the_same_colours(generator: torch.Generator)
     finally:
         torch.set_num_threads(threads)
     assert torch.equal(serial, parallel)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
+def test_cuda_render_matches_dense_float64_sampling(generator: torch.Generator) -> None:
+    """What a GPU worker runs (the batched torch marcher on CUDA, ``--device auto``) against the CPU's
+    float64 dense scan: colours and opacities within 1e-4 and surface points within 1e-3 map units,
+    the tolerances of the CPU tests above (float32 rounding; the GPU's own summation order adds less)."""
+    field = _blob_field(generator, termination=1e-12, render_step_factor=2.0)
+    origins, directions = _rays(generator, 300)
+    reference, reference_opacity, weighted_points = _dense_reference(field, origins, directions)
+    field = field.to("cuda")
+    colour, points, opacity = (x.cpu().double() for x in field.render_surface(origins.cuda(), directions.cuda(), directions.cuda()))
+    torch.testing.assert_close(colour, reference, atol=1e-4, rtol=0)
+    torch.testing.assert_close(opacity, reference_opacity, atol=1e-4, rtol=0)
+    seen = reference_opacity > 0.01
+    assert int(seen.sum()) > 50
+    torch.testing.assert_close(points[seen], weighted_points[seen] / reference_opacity[seen, None], atol=1e-3, rtol=0)
