@@ -52,7 +52,11 @@ class LoadCaseConfig(BaseModel):
     odometry_rate: float = Field(15.0, gt=0, description="Odometry messages per second (the pose rate).")
     duration: float = Field(20.0, gt=0, description="Measurement window, seconds.")
     warmup: float = Field(3.0, ge=0, description="Seconds after the first pose that are not measured.")
-    settle: float = Field(5.0, ge=0, description="Seconds after the window during which answers to its messages still count (the filter's update_timeout).")
+    settle: float = Field(
+        5.0,
+        ge=0,
+        description="Seconds after the window during which answers to its messages still count (the filter's update_timeout); the run goes on once all are in.",
+    )
     map: str = Field("world", description="'world' (the procedural world) or a map file for the filter and workers.")
     device: str = Field("auto", description="Device of the filter and workers: auto, cpu, cuda.")
     seed: int = Field(0, description="Seed of the stream and the filter.")
@@ -195,6 +199,16 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
             if memory and time.monotonic() - next(iter(memory[-1].values())).at >= case.memory_period:
                 memory.append(_sample_all(pids))
 
+    def settle(start: float, end: float, deadline: float) -> None:
+        # After the window the arrivals are decoded as they come, and the wait ends as soon as every
+        # message of the window has its answer (a late answer still counts until the deadline).
+        while True:
+            while (item := inbox.get(timeout=0.0)) is not None:
+                observe(item)
+            if recorder.unanswered(start, end) == 0 or time.monotonic() >= deadline:
+                return
+            drain_until(min(deadline, time.monotonic() + 0.1))
+
     try:
         start_services(hub.supervisor, configs)
         give_up = time.monotonic() + FIRST_POSE_TIMEOUT_S
@@ -210,7 +224,7 @@ def run_case(case: LoadCaseConfig, folder: Path) -> dict[str, object]:
         end, after = time.monotonic(), _sample_all(pids)
         memory.append(after)
         window_memory = list(memory)
-        wait_until(end + case.settle)
+        settle(start, end, end + case.settle)
     finally:
         hub.close()
     while (item := inbox.get(timeout=0.0)) is not None:

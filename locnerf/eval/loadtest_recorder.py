@@ -4,7 +4,8 @@ The observer subscribes to the same keys as the services (odometry, images, upda
 results, poses, status) and stamps each arrival with its own monotonic clock. Every figure below is
 computed from those arrivals over a measurement window ``[start, end]``; answers to messages of the
 window (a pose for an odometry stamp, a result for a request shard) are accepted after ``end``, so
-the caller keeps observing a little longer before calling :meth:`LoadRecorder.report`.
+the caller keeps observing a little longer before calling :meth:`LoadRecorder.report`: until
+:meth:`LoadRecorder.unanswered` is 0, or the filter's ``update_timeout`` has passed.
 
 Lost messages are counted, not estimated:
 
@@ -111,6 +112,19 @@ class LoadRecorder:
             updates[request_id] = (min(at for _, at in sent), done)
         return updates
 
+    def _poses_missing(self, start: float, end: float) -> int:
+        """Odometry stamps that arrived in ``[start, end]`` without a pose of the same stamp (yet)."""
+        return sum(1 for stamp, at in self.odometry.items() if start <= at <= end and stamp not in self.poses)
+
+    def _results_missing(self, start: float, end: float) -> int:
+        """Request shards that arrived in ``[start, end]`` without a result (yet)."""
+        return sum(1 for key, at in self.request_shards.items() if start <= at <= end and key not in self.results)
+
+    def unanswered(self, start: float, end: float) -> int:
+        """Messages of the window ``[start, end]`` still waiting for their answer (a pose, a result): the
+        observer can stop waiting after the window once this is 0."""
+        return self._poses_missing(start, end) + self._results_missing(start, end)
+
     def _status_delta(self, name: str, start: float, end: float) -> int:
         """Growth of a filter status counter between the last status before ``start`` and the last before ``end``."""
         inside = [s.counters.get(name, 0) for at, s in self.statuses if at <= end]
@@ -147,8 +161,8 @@ class LoadRecorder:
         lost = {
             "odometry": _stamp_gaps(list(odometry_in), self.odometry_rate),
             "images": _stamp_gaps(images_in, self.camera_rate),
-            "poses": sum(1 for stamp in odometry_in if stamp not in self.poses),
-            "results": sum(1 for (rid, shard), at in self.request_shards.items() if inside(at) and (rid, shard) not in self.results),
+            "poses": self._poses_missing(start, end),
+            "results": self._results_missing(start, end),
             "observer": observer_drops,
         }
         return {

@@ -95,6 +95,23 @@ def test_missing_poses_odometry_and_results_are_lost_not_dropped():
     assert report["pose_interval_p99_ms"] == pytest.approx(200.0, abs=1.0)
 
 
+def test_unanswered_counts_the_window_messages_still_waiting_until_their_answers_arrive():
+    recorder = LoadRecorder(odometry_rate=10.0, camera_rate=2.0)
+    steady_stream(recorder, 2.0)
+    assert recorder.unanswered(0.0, 2.0) == 0
+    recorder.observe("odometry", odometry(2.0), 2.0)
+    recorder.observe("request", request("open", 0), 2.0)
+    recorder.observe("request", request("open", 1), 2.0)
+    recorder.observe("odometry", odometry(2.1), 2.1)  # after the window: not waited for
+    assert recorder.unanswered(0.0, 2.0) == 3
+    recorder.observe("pose", pose(2.0), 2.05)
+    recorder.observe("result", result("open", 1), 2.06)
+    assert recorder.unanswered(0.0, 2.0) == 1
+    recorder.observe("result", result("open", 0), 2.5)
+    assert recorder.unanswered(0.0, 2.0) == 0
+    assert recorder.report(0.0, 2.0)["lost_messages"] == 0
+
+
 def test_frames_beyond_the_updates_are_dropped_frames():
     recorder = LoadRecorder(odometry_rate=10.0, camera_rate=10.0)
     for k in range(10):
