@@ -20,6 +20,9 @@ demo: $(STAMP)
 	$(BIN)/locnerf up --duration 40 --port 0 --plot out/demo/services.png
 
 # Tests that start services or time real-time behaviour run alone, after the rest has run on two workers.
+# The run starts hundreds of Python processes and collects the suite twice: bytecode and pytest's rewritten
+# test modules are cached even where the environment sets PYTHONDONTWRITEBYTECODE (empty means unset).
+test: export PYTHONDONTWRITEBYTECODE :=
 test: $(STAMP) lint
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not serial"
 	$(BIN)/python -m pytest -q -m serial
