@@ -29,6 +29,7 @@ from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, Odometry, PoseEstimate, PoseStamped
 from locnerf_cli.bus_client import DEFAULT_PORT
 from locnerf_cli.monitor import GroundTruthMatcher, PoseError, pose_line
+from locnerf_cli.view import check_save_path
 from locnerf_services.filter_loop.__main__ import FilterProcessConfig
 from locnerf_services.local_hub import LocalHub
 from locnerf_services.nerf_worker.__main__ import WorkerConfig
@@ -250,8 +251,10 @@ def start_view(hub: LocalHub, args: argparse.Namespace, map_spec: str) -> bool:
         hub.supervisor.start("view", command + (["--save", str(args.save.resolve())] if args.save is not None else []))
         deadline = time.monotonic() + VIEW_STARTUP_TIMEOUT_S
         while not ready.wait(0.1):
-            if "view" in hub.supervisor.exited() or time.monotonic() > deadline:
-                print(f"the view did not start within {VIEW_STARTUP_TIMEOUT_S:.0f} s: see {args.logs / 'view.log'}", file=sys.stderr)
+            exited = hub.supervisor.exited().get("view")
+            if exited is not None or time.monotonic() > deadline:
+                why = f"exited with code {exited}" if exited is not None else f"was not recording within {VIEW_STARTUP_TIMEOUT_S:.0f} s"
+                print(f"the view {why}: see {args.logs / 'view.log'}", file=sys.stderr)
                 return False
     finally:
         watch.close()
@@ -286,6 +289,7 @@ def run(args: argparse.Namespace) -> int:
         raise LocnerfInputError(f"--until-updates {args.until_updates}: expected 0 (no limit) or more")
     if args.save is not None and not args.view:
         raise LocnerfInputError(f"--save {args.save}: expected --view too (the view writes the recording)")
+    check_save_path(args.save)
     configs = up_configs(args)
     hub = LocalHub(args.logs, port=args.port)
     inbox = Inbox(capacity=4096)

@@ -59,6 +59,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(func=run)
 
 
+def check_save_path(save: Path | None) -> None:
+    """Refuse a ``--save`` path that rerun could not create.
+
+    Raises:
+        LocnerfInputError: ``save`` is a folder or its folder does not exist.
+    """
+    if save is not None and (save.is_dir() or not save.parent.is_dir()):
+        raise LocnerfInputError(f"--save {save}: expected a file in an existing folder (the .rrd recording)")
+
+
 def import_rerun() -> ModuleType:
     """:mod:`locnerf_cli.view_rerun`, which needs the optional rerun-sdk.
 
@@ -183,6 +193,7 @@ def _handlers(view: View) -> dict[str, Callable]:
 def run(args: argparse.Namespace) -> int:
     if args.count < 0 or args.duration < 0 or args.image_width < 8:
         raise LocnerfInputError(f"--count {args.count}, --duration {args.duration}, --image-width {args.image_width}: expected >= 0, >= 0, >= 8")
+    check_save_path(args.save)
     stop = _stop_on_sigterm()
     log = import_rerun()
     radiance_map = open_map(args.map, torch.device("cpu")) if args.map else None

@@ -30,3 +30,12 @@ def test_without_a_display_the_viewer_is_not_spawned_and_saving_is_suggested(mon
 def test_up_refuses_save_without_view(caplog, tmp_path):
     assert main(["up", "--save", str(tmp_path / "run.rrd"), "--logs", str(tmp_path)]) == 2
     assert "expected --view too" in caplog.records[-1].getMessage()
+
+
+@pytest.mark.parametrize("command", [["view"], ["up", "--view", "--port", "0"]])
+def test_a_recording_in_a_missing_folder_is_refused_before_anything_starts(command, caplog, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # up's default logs folder would be created here
+    save = tmp_path / "missing" / "run.rrd"
+    assert main([*command, "--save", str(save)]) == 2
+    assert f"--save {save}: expected a file in an existing folder" in caplog.records[-1].getMessage()
+    assert sorted(tmp_path.iterdir()) == []  # no logs, no recording
