@@ -69,7 +69,7 @@ class FinalSearchConfig(BaseModel):
         """(6, 6) float64 covariance of the swings about the pivot point (zero without ``pivot_depth``), rotation first."""
         if self.pivot_depth is None:
             return torch.zeros(6, 6, dtype=torch.float64)
-        return PivotNoise(self.pivot_depth, torch.full((2,), math.radians(self.pivot_sigma_deg), dtype=torch.float64)).covariance()
+        return PivotNoise.equal_swings(self.pivot_depth, self.pivot_sigma_deg).covariance()
 
     def floor(self) -> torch.Tensor:
         """(6, 6) float64 diagonal covariance of the floors, rotation first."""

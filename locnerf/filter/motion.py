@@ -16,6 +16,7 @@ covariance ``diag(σ²) + A diag(σ_p²) Aᵀ``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -75,6 +76,11 @@ class PivotNoise:
 
     depth: float
     sigma: torch.Tensor
+
+    @classmethod
+    def equal_swings(cls, depth: float, sigma_deg: float) -> PivotNoise:
+        """Swings of the same σ (degrees) about the camera's x and y axes, as the search and refining settings give them."""
+        return cls(depth, torch.full((2,), math.radians(sigma_deg), dtype=torch.float64))
 
     def tangent_map(self) -> torch.Tensor:
         """(6, 2) float64 A: pivot angles (θx, θy) -> camera-frame tangent (rotation, translation)."""

@@ -454,6 +454,5 @@ def refining_draws(estimate: ParticleEstimate, count: int, config: RecoveryConfi
     floor = torch.tensor([math.radians(config.refine_min_rotation_deg)] * 3 + [config.refine_min_position] * 3, dtype=torch.float64)
     covariance = config.refine_scale**2 * 0.5 * (covariance + covariance.T) + torch.diag(floor**2)
     if config.refine_pivot_sigma_deg > 0:
-        sigma = torch.full((2,), math.radians(config.refine_pivot_sigma_deg), dtype=torch.float64)
-        covariance = covariance + PivotNoise(config.refine_pivot_depth, sigma).covariance()
+        covariance = covariance + PivotNoise.equal_swings(config.refine_pivot_depth, config.refine_pivot_sigma_deg).covariance()
     return gaussian_particles(estimate.pose.double().cpu(), covariance, count, generator)
