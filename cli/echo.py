@@ -9,7 +9,7 @@ from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import PoseEstimate, PoseStamped
 from locnerf_cli.bus_client import add_bus_arguments, open_cli_bus
-from locnerf_cli.monitor import GroundTruthMatcher, pose_line
+from locnerf_cli.monitor import GroundTruthMatcher, ScoredPoses, pose_line
 from locnerf_services.transport import Inbox
 
 
@@ -31,23 +31,24 @@ def run(args: argparse.Namespace) -> int:
         bus.subscribe(keys.key(args.robot_id, keys.POSE), lambda _k, payload: inbox.put(("pose", payload))),
     ]
     deadline = time.monotonic() + args.timeout if args.timeout > 0 else float("inf")
+    poses = ScoredPoses(matcher)
     printed = 0
     try:
         while time.monotonic() < deadline and (args.count == 0 or printed < args.count):
             item = inbox.get(timeout=0.1)
-            if item is None:
-                continue
-            kind, payload = item
-            try:
-                if kind == "truth":
-                    matcher.add_truth(decode(payload, PoseStamped))
-                    continue
-                estimate = decode(payload, PoseEstimate)
-            except DecodeError as error:
-                print(f"bad {kind} message: {error}")
-                continue
-            print(pose_line(estimate, matcher.error(estimate)), flush=True)
-            printed += 1
+            if item is not None:
+                kind, payload = item
+                try:
+                    if kind == "truth":
+                        matcher.add_truth(decode(payload, PoseStamped))
+                    else:
+                        poses.add(decode(payload, PoseEstimate), time.monotonic())
+                except DecodeError as error:
+                    print(f"bad {kind} message: {error}")
+            for estimate, error in poses.release(time.monotonic()):
+                if args.count == 0 or printed < args.count:
+                    print(pose_line(estimate, error), flush=True)
+                    printed += 1
     except KeyboardInterrupt:
         pass
     finally:

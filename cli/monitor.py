@@ -30,12 +30,20 @@ class GroundTruthMatcher:
     def __init__(self, capacity: int = 2000) -> None:
         self._truth: collections.OrderedDict[float, torch.Tensor] = collections.OrderedDict()
         self.capacity = capacity
+        self.newest_stamp: float | None = None
+        """Stamp of the newest true pose received (None: no ground truth yet)."""
 
     def add_truth(self, message: PoseStamped) -> None:
         """Remember a true pose."""
         self._truth[message.stamp] = torch.tensor(message.T_world_cam, dtype=torch.float64)
+        self.newest_stamp = message.stamp if self.newest_stamp is None else max(self.newest_stamp, message.stamp)
         while len(self._truth) > self.capacity:
             self._truth.popitem(last=False)
+
+    def settled(self, estimate: PoseEstimate) -> bool:
+        """Whether the estimate's truth is known or will not come: it arrived, no ground truth is published
+        (none seen yet), or truth of a later stamp arrived (one source publishes it in stamp order)."""
+        return estimate.stamp in self._truth or self.newest_stamp is None or self.newest_stamp > estimate.stamp
 
     def error(self, estimate: PoseEstimate) -> PoseError | None:
         """The estimate's error, or None if no ground truth has its stamp."""
@@ -53,3 +61,32 @@ def pose_line(estimate: PoseEstimate, error: PoseError | None) -> str:
     if error is not None:
         line += f"  error={error.translation:.3f} m {error.rotation_deg:.2f}°"
     return line
+
+
+class ScoredPoses:
+    """Estimates held until their ground truth has arrived, so that each is scored when it can be.
+
+    The truth and the pose of one stamp reach a subscriber over different routes (ingest and filter), so
+    the pose can come first; it waits at most ``wait_s`` for its truth.
+
+    Args:
+        matcher: the ground truth received so far.
+        wait_s: longest hold of an estimate, seconds.
+    """
+
+    def __init__(self, matcher: GroundTruthMatcher, wait_s: float = 0.5) -> None:
+        self.matcher = matcher
+        self.wait_s = wait_s
+        self._pending: collections.deque[tuple[float, PoseEstimate]] = collections.deque()
+
+    def add(self, estimate: PoseEstimate, arrived_at: float) -> None:
+        """Hold an estimate that arrived at ``arrived_at`` (monotonic seconds)."""
+        self._pending.append((arrived_at, estimate))
+
+    def release(self, now: float) -> list[tuple[PoseEstimate, PoseError | None]]:
+        """The held estimates, oldest first, whose truth is settled or that waited ``wait_s``, with their errors."""
+        released = []
+        while self._pending and (self.matcher.settled(self._pending[0][1]) or now - self._pending[0][0] >= self.wait_s):
+            estimate = self._pending.popleft()[1]
+            released.append((estimate, self.matcher.error(estimate)))
+        return released
