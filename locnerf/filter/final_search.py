@@ -24,11 +24,15 @@ camera's x and y axes, as the motion model's pivot noise draws them
 always one of the candidates, so the result never scores below the filter's estimate on those pixels).
 
 Cost: ``pixels × (1 + iterations × candidates)`` rays, once per image.
+
+:func:`cross_entropy_search` is the search itself on any likelihood of fixed pixels; the live filter
+runs it after a relocalization on an update's own likelihood (:mod:`locnerf.filter.recovery`, ``search``).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -42,28 +46,38 @@ from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 
 
-class FinalSearchConfig(BaseModel):
-    """The final local search's budget and spreads (module docstring)."""
+class CrossEntropyConfig(BaseModel):
+    """The cross-entropy search's budget and spreads (module docstring), on whatever likelihood it is given."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    pixels: int = Field(1024, ge=1, description="Pixels drawn once (by the measurement's sampling rule) and rendered for every candidate.")
     iterations: int = Field(6, ge=1, description="Cross-entropy rounds.")
     candidates: int = Field(64, ge=2, description="Poses rendered per round (the current mean among them).")
     elite: int = Field(8, ge=2, description="Best candidates that give the next round's mean and covariance.")
     inflation: float = Field(2.0, gt=0, description="The first round's covariance is the cloud's times inflation².")
     min_position: float = Field(0.002, ge=0, description="Floor of the search's position standard deviation per axis (map units).")
     min_rotation_deg: float = Field(0.1, ge=0, description="Floor of the search's rotation standard deviation per axis (degrees).")
+    start_position: float = Field(
+        0.0, ge=0, description="Added to the first round only: position standard deviation per axis (map units), however narrow the cloud is."
+    )
+    start_rotation_deg: float = Field(0.0, ge=0, description="Added to the first round only: rotation standard deviation per axis (degrees).")
     pivot_depth: float | None = Field(
         None, gt=0, description="Widen the first round along the valley: swings about the point this far ahead of the camera (map units; None: off)."
     )
     pivot_sigma_deg: float = Field(1.0, ge=0, description="Standard deviation of those swings about the camera's x and y axes (degrees).")
 
     @model_validator(mode="after")
-    def _elite_within_candidates(self) -> FinalSearchConfig:
+    def _elite_within_candidates(self) -> CrossEntropyConfig:
         if self.elite > self.candidates:
             raise ValueError(f"elite={self.elite} > candidates={self.candidates}: expected at most as many elite as candidates")
         return self
+
+    def first_round(self, covariance: torch.Tensor) -> torch.Tensor:
+        """(6, 6) float64 covariance of the first round from the cloud's (6, 6), rotation first: inflated, plus the
+        pivot swings (:meth:`valley`), the start spreads and the floors."""
+        covariance = covariance.double().cpu()
+        start = torch.tensor([math.radians(self.start_rotation_deg)] * 3 + [self.start_position] * 3, dtype=torch.float64)
+        return self.inflation**2 * 0.5 * (covariance + covariance.T) + self.valley() + torch.diag(start**2) + self.floor()
 
     def valley(self) -> torch.Tensor:
         """(6, 6) float64 covariance of the swings about the pivot point (zero without ``pivot_depth``), rotation first."""
@@ -75,6 +89,12 @@ class FinalSearchConfig(BaseModel):
         """(6, 6) float64 diagonal covariance of the floors, rotation first."""
         sigmas = [math.radians(self.min_rotation_deg)] * 3 + [self.min_position] * 3
         return torch.diag(torch.tensor(sigmas, dtype=torch.float64) ** 2)
+
+
+class FinalSearchConfig(CrossEntropyConfig):
+    """The final local search of a single image: the cross-entropy search on ``pixels`` pixels drawn once."""
+
+    pixels: int = Field(1024, ge=1, description="Pixels drawn once (by the measurement's sampling rule) and rendered for every candidate.")
 
 
 @dataclass(frozen=True)
@@ -115,9 +135,6 @@ def final_search(
         generator: CPU generator of every draw.
         device: where the poses are rendered from.
     """
-    validate_poses(mean, name="final search start")
-    if mean.ndim != 2 or tuple(covariance.shape) != (6, 6):
-        raise ValueError(f"final search: expected a (4, 4) mean and a (6, 6) covariance, got {tuple(mean.shape)} and {tuple(covariance.shape)}")
     pixels = sample_pixels_of_image(image, measurement, generator, config.pixels)
     observed = observed_colours(image, pixels).to(device)
     pixels = pixels.to(device)
@@ -134,16 +151,39 @@ def final_search(
             measurement.exposure_gain_range,
         ).cpu()
 
+    return cross_entropy_search(mean, covariance, score, config, generator, len(pixels))
+
+
+def cross_entropy_search(
+    mean: torch.Tensor,
+    covariance: torch.Tensor,
+    score: Callable[[torch.Tensor], torch.Tensor],
+    config: CrossEntropyConfig,
+    generator: torch.Generator,
+    rays_per_pose: int = 0,
+) -> FinalSearchResult:
+    """Maximise ``score`` near ``mean`` by the cross-entropy method (module docstring).
+
+    Args:
+        mean: (4, 4) start (``T_world_cam``).
+        covariance: (6, 6) the cloud's covariance in the tangent space of ``mean`` (rotation first).
+        score: poses (K, 4, 4) float64 on the CPU -> (K,) log-likelihoods on fixed pixels (NaN: impossible).
+        config: the search's budget and spreads.
+        generator: CPU generator of every draw.
+        rays_per_pose: rays one score of one pose costs (for the reported ``rays``).
+    """
+    validate_poses(mean, name="cross-entropy search start")
+    if mean.ndim != 2 or tuple(covariance.shape) != (6, 6):
+        raise ValueError(f"cross-entropy search: expected a (4, 4) mean and a (6, 6) covariance, got {tuple(mean.shape)} and {tuple(covariance.shape)}")
     mean = mean.double().cpu()
-    covariance = covariance.double().cpu()
-    covariance = config.inflation**2 * 0.5 * (covariance + covariance.T) + config.valley() + config.floor()
+    covariance = config.first_round(covariance)
     best_pose, best_score = mean, float(score(mean[None])[0])
     start_score = best_score
-    rays = len(pixels)
+    rays = rays_per_pose
     for _ in range(config.iterations):
         candidates = torch.cat((mean[None], gaussian_particles(mean, covariance, config.candidates - 1, generator)))
-        scores = score(candidates)
-        rays += len(candidates) * len(pixels)
+        scores = score(candidates).double().cpu()
+        rays += len(candidates) * rays_per_pose
         elite = torch.topk(torch.nan_to_num(scores, nan=-math.inf), config.elite).indices
         if float(scores[elite[0]]) > best_score:
             best_pose, best_score = candidates[elite[0]], float(scores[elite[0]])

@@ -40,6 +40,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.filter.estimate import ParticleEstimate
+from locnerf.filter.final_search import CrossEntropyConfig
 from locnerf.filter.initialization import gaussian_particles, global_particles, rotation_about_axis, uniform_particles
 from locnerf.filter.motion import PivotNoise
 from locnerf.geometry.se3 import make_pose, se3_exp
@@ -142,6 +143,22 @@ class RecoveryConfig(BaseModel):
         "a relocalized cloud closes slowest (0: none).",
     )
 
+    search: CrossEntropyConfig | None = Field(
+        None,
+        description="After the refining updates (a relocalization's or the keyframe start's), search the estimate by the cross-entropy "
+        "method on the next search_updates updates' own likelihood (their pixels, reference and depth points; the worker of the update "
+        "runs it) and move the cloud by the offset of the best pose found (None: off). Closes the last centimetres a relocalized cloud "
+        "would otherwise close at the prediction noise's pace.",
+    )
+    search_updates: int = Field(1, ge=1, description="Updates, one after the other, that each carry a search once the refining updates end.")
+    search_max_spread: float = Field(
+        0.05,
+        gt=0,
+        description="A due search waits for a cloud whose largest per-axis weighted position spread is at most this (map units): "
+        "the search starts from the cloud's covariance, and one from a cloud still closing in reached other places.",
+    )
+    search_min_gain: float = Field(0.0, ge=0, description="Nats the found pose must score above the estimate on the search's pixels before the cloud is moved.")
+
     @model_validator(mode="after")
     def _consistent(self) -> RecoveryConfig:
         if self.alpha_fast <= self.alpha_slow:
@@ -202,6 +219,7 @@ class RecoveryMonitor:
         self.tracked: dict[object, float] = {}  # per likelihood kind: the slow average before the low updates
         self.verifying = False
         self.settling: list[float] = []  # the verification's log-likelihoods so far (one kind)
+        self.searches = 0  # updates still to carry a search (config.search) since the last refining update
 
     def reset(self) -> None:
         """Forget the history (after a re-initialisation)."""
@@ -210,6 +228,19 @@ class RecoveryMonitor:
         self.refining = 0
         self.tracked = {}
         self.verifying = False
+        self.searches = 0
+
+    @property
+    def search_due(self) -> bool:
+        """A search is owed (``config.search``, ``search_updates`` of them after the refining updates ended)."""
+        return self.searches > 0
+
+    def take_search(self) -> CrossEntropyConfig | None:
+        """The search an update about to start should carry, counted off the searches due, or None."""
+        if self.searches == 0:
+            return None
+        self.searches -= 1
+        return self.config.search
 
     def forget_level(self) -> None:
         """Forget the likelihood averages, not a relocalization under way (the likelihood changed kind: rendered / re-projected)."""
@@ -240,6 +271,7 @@ class RecoveryMonitor:
             if self.refining == 0:
                 self.forget_level()
                 self.verifying = config.verify_updates > 0
+                self.searches = config.search_updates if config.search is not None else 0
             self.streak += 1
             return InjectionPlan(fraction=config.refine_fraction, local_radius=config.local_radius, local_yaw=0.0, around_estimate=True)
         if self.verifying:

@@ -15,6 +15,7 @@ import torch
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from locnerf.filter.annealing import AnnealingStage
+from locnerf.filter.final_search import CrossEntropyConfig
 from locnerf.filter.measurement import ExposureGainRange, MeasurementConfig
 from locnerf.geometry.validation import validate_pose_setting
 from locnerf.messages.stamps import NANOSECONDS_PER_SECOND, nanoseconds_from_seconds, seconds_from_nanoseconds
@@ -46,6 +47,12 @@ def _check_depth_offset(value: Matrix) -> Matrix:
 
 DepthOffset = Annotated[Matrix, AfterValidator(_check_depth_offset)]
 """The depth camera's pose in the colour camera's frame: 4×4, metres, OpenGL axes."""
+
+PoseMatrix = Annotated[Matrix, AfterValidator(lambda value: _check_pose(value, "pose"))]
+"""A 4×4 pose: finite, last row [0, 0, 0, 1]."""
+
+Covariance6 = Annotated[Matrix, AfterValidator(lambda value: _check_matrix(value, 6, 6, "covariance"))]
+"""A finite 6×6 covariance in a pose's tangent space (rotation first)."""
 
 
 def _check_covariance(value: Matrix, name: str) -> Matrix:
@@ -309,6 +316,24 @@ class DepthRequest(_Wire):
         return self
 
 
+class SearchRequest(_Wire):
+    """Search the cloud's estimate on the shard's own likelihood (its pixels, reference and depth points) by the
+    cross-entropy method (:func:`locnerf.filter.final_search.cross_entropy_search`); only shard 0 carries it."""
+
+    mean: PoseMatrix = Field(description="4×4 start of the search (the snapshot's weighted mean), map units.")
+    covariance: Covariance6 = Field(description="6×6 covariance of the cloud in the tangent space of `mean` (rotation first), map units and radians.")
+    config: CrossEntropyConfig = Field(description="The search's budget and spreads.")
+    seed: int = Field(ge=0, lt=2**63, description="Seed of the search's draws.")
+
+
+class SearchFound(_Wire):
+    """What a :class:`SearchRequest` found."""
+
+    pose: PoseMatrix = Field(description="4×4 best pose found, map units.")
+    log_likelihood: float = Field(description="Its log-likelihood on the shard's pixels.")
+    start_log_likelihood: float = Field(description="The start's, on the same pixels.")
+
+
 class UpdateRequest(_Wire):
     """One shard of an update: render ``pixels`` from every pose and compare with ``observed_rgb``."""
 
@@ -332,6 +357,7 @@ class UpdateRequest(_Wire):
     )
     warp: WarpRequest | None = Field(None, description="Re-projection instead of rendering; a worker whose map cannot place surfaces renders `pixels` instead.")
     depth: DepthRequest | None = Field(None, description="The depth term of an RGB-D frame, added to the colour term; None: colour only.")
+    search: SearchRequest | None = Field(None, description="A search of the estimate on this shard's likelihood (after a relocalization); None: none.")
 
     @model_validator(mode="after")
     def _shapes(self) -> UpdateRequest:
@@ -358,6 +384,7 @@ class UpdateResult(_Wire):
     ids: list[int] = Field(description="(K,) particle ids.")
     log_likelihoods: list[float] = Field(description="(K,) log-likelihoods (−inf allowed).")
     compute_seconds: float = Field(ge=0, description="Worker time spent on the shard.")
+    search: SearchFound | None = Field(None, description="The result of the request's search; None when it carried none.")
 
     @model_validator(mode="after")
     def _lengths(self) -> UpdateResult:

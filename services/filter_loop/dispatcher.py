@@ -22,9 +22,18 @@ from dataclasses import dataclass, field
 
 import torch
 
-from locnerf.filter.localizer import UpdateSnapshot
+from locnerf.filter.localizer import PoseSearch, UpdateSnapshot
 from locnerf.messages.keys import WorkerToken
-from locnerf.messages.schemas import DepthRequest, RefusalReason, UpdateRefusal, UpdateRequest, UpdateResult, WarpRequest
+from locnerf.messages.schemas import (
+    DepthRequest,
+    RefusalReason,
+    SearchFound,
+    SearchRequest,
+    UpdateRefusal,
+    UpdateRequest,
+    UpdateResult,
+    WarpRequest,
+)
 from locnerf.render.camera import PinholeIntrinsics
 
 logger = logging.getLogger(__name__)
@@ -36,6 +45,7 @@ class _Shard:
     worker: str | None
     tried: list[str] = field(default_factory=list)  # the workers it was sent to, in order
     log_likelihoods: list[float] | None = None
+    found: SearchFound | None = None
 
 
 @dataclass
@@ -44,6 +54,7 @@ class _Update:
     snapshot: UpdateSnapshot
     started: float
     image: torch.Tensor | None
+    search: PoseSearch | None = None
     shards: list[_Shard] = field(default_factory=list)
 
     def complete(self) -> bool:
@@ -53,7 +64,8 @@ class _Update:
 @dataclass(frozen=True)
 class CompletedUpdate:
     """Joined results: ``ids`` (N,) and ``log_likelihoods`` (N,) of snapshot ``(epoch, generation)``,
-    with the update's ``image`` (H, W, 3) if one was kept, its camera, and whether it was a re-projection."""
+    with the update's ``image`` (H, W, 3) if one was kept, its camera, whether it was a re-projection,
+    and the search it carried with what the search found (both None without one)."""
 
     epoch: int
     generation: int
@@ -63,6 +75,8 @@ class CompletedUpdate:
     image: torch.Tensor | None
     intrinsics: PinholeIntrinsics
     warped: bool = False
+    search: PoseSearch | None = None
+    found: SearchFound | None = None
 
 
 AddressedRequest = tuple[str, UpdateRequest]
@@ -184,11 +198,13 @@ class UpdateDispatcher:
         exposure_gain_range: tuple[float, float] | None = None,
         warp: WarpRequest | None = None,
         depth: DepthRequest | None = None,
+        search: PoseSearch | None = None,
     ) -> list[AddressedRequest]:
         """Split ``snapshot`` over the live workers; pixels (M, 2), observed_rgb (M, 3); ``image``
         (H, W, 3) is kept until the update completes (for kidnapping recovery); ``exposure_gain_range``
         asks the workers for the exposure-invariant likelihood (None: off); ``warp`` for re-projection,
-        ``depth`` for the depth term of an RGB-D frame (every shard gets the same of both).
+        ``depth`` for the depth term of an RGB-D frame (every shard gets the same of both); ``search``
+        goes with shard 0 only.
 
         Raises:
             RuntimeError: if :attr:`can_start` is false.
@@ -196,7 +212,10 @@ class UpdateDispatcher:
         if not self.can_start:
             raise RuntimeError(f"cannot start an update: {len(self.pending)} in flight (max {self.max_in_flight}), {len(self.workers)} worker(s)")
         names = sorted(self.workers)
-        update = _Update(uuid.uuid4().hex[:12], snapshot, now, image)
+        update = _Update(uuid.uuid4().hex[:12], snapshot, now, image, search)
+        searching = None
+        if search is not None:
+            searching = SearchRequest(mean=search.mean.tolist(), covariance=search.covariance.tolist(), config=search.config, seed=search.seed)
         poses = snapshot.poses.detach().double().cpu().reshape(-1, 16)
         ids = snapshot.ids.cpu()
         common = {
@@ -214,7 +233,7 @@ class UpdateDispatcher:
         }
         parts = torch.tensor_split(torch.arange(len(ids)), min(len(names), len(ids)))
         for index, (part, worker) in enumerate(zip(parts, names)):
-            request = UpdateRequest(shard=index, ids=ids[part].tolist(), poses=poses[part].tolist(), **common)
+            request = UpdateRequest(shard=index, ids=ids[part].tolist(), poses=poses[part].tolist(), search=searching if index == 0 else None, **common)
             update.shards.append(_Shard(request, worker, [worker]))
         self.pending[update.request_id] = update
         if len(self._issued) == self._issued.maxlen:
@@ -226,6 +245,8 @@ class UpdateDispatcher:
             self.counters["updates_warped"] += 1
         if depth is not None:
             self.counters["updates_with_depth"] += 1
+        if search is not None:
+            self.counters["updates_with_search"] += 1
         return [(shard.worker, shard.request) for shard in update.shards]
 
     def receive(self, result: UpdateResult, now: float) -> CompletedUpdate | None:
@@ -243,7 +264,11 @@ class UpdateDispatcher:
             return None
         if result.shard >= len(update.shards) or result.ids != update.shards[result.shard].request.ids:
             raise ValueError(f"result of shard {result.shard} from {result.worker_id}: no such shard, or particle ids differ from the request's")
-        update.shards[result.shard].log_likelihoods = result.log_likelihoods
+        shard = update.shards[result.shard]
+        if (result.search is None) != (shard.request.search is None):
+            raise ValueError(f"result of shard {result.shard} from {result.worker_id}: a search result without a search, or none for the one asked")
+        shard.log_likelihoods = result.log_likelihoods
+        shard.found = result.search
         if not update.complete():
             return None
         del self.pending[update.request_id]
@@ -256,6 +281,8 @@ class UpdateDispatcher:
             image=update.image,
             intrinsics=update.shards[0].request.intrinsics,
             warped=update.shards[0].request.warp is not None,
+            search=update.search,
+            found=update.shards[0].found,
         )
 
     def refused(self, refusal: UpdateRefusal) -> list[AddressedRequest]:

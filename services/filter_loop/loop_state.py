@@ -23,6 +23,7 @@ from functools import partial
 import torch
 
 from locnerf.filter.estimate import ParticleEstimate, carry_estimate
+from locnerf.filter.final_search import FinalSearchResult
 from locnerf.filter.localizer import Localizer, MergeOutcome, MergeReport
 from locnerf_services.filter_loop.dispatcher import CompletedUpdate
 
@@ -102,12 +103,18 @@ class LoopStateMachine:
         return self.estimate
 
     def merge(self, completed: CompletedUpdate) -> MergeReport:
-        """Merge a completed update into the particles (-> ESTIMATE_STALE when merged)."""
+        """Merge a completed update into the particles, then move them by its search's find when it carried one
+        (:meth:`Localizer.move_by_search`) (-> ESTIMATE_STALE when merged)."""
         localizer = self.settled()
         find_candidates = None
         if completed.image is not None:
             find_candidates = partial(localizer.keyframe_candidates, completed.image, completed.intrinsics)
         report = localizer.merge(completed.epoch, completed.generation, completed.ids, completed.log_likelihoods, find_candidates, completed.warped)
         if report.outcome is MergeOutcome.MERGED:
+            if completed.search is not None and completed.found is not None:
+                found = FinalSearchResult(
+                    torch.tensor(completed.found.pose, dtype=torch.float64), completed.found.log_likelihood, completed.found.start_log_likelihood, 0
+                )
+                localizer.move_by_search(completed.search, found)
             self.state = LoopState.ESTIMATE_STALE
         return report

@@ -500,7 +500,17 @@ class FilterLoop:
             warp = WarpRequest(reference_pose=reference.tolist(), seed=seed, measurement=measurement, image=np.ascontiguousarray(pixels).tobytes())
         depth_part = self._depth_part(header, depth, measurement, localizer.generator)
         addressed = self.dispatcher.start(
-            snapshot, chosen, colours, intrinsics, measurement.exponent, now, kept, measurement.exposure_gain_range, warp, depth_part
+            snapshot,
+            chosen,
+            colours,
+            intrinsics,
+            measurement.exponent,
+            now,
+            kept,
+            measurement.exposure_gain_range,
+            warp,
+            depth_part,
+            localizer.search_for(snapshot),
         )
         return self._requests(addressed)
 
@@ -542,6 +552,8 @@ class FilterLoop:
             "updates_tempered": merged["tempered"],
             "recoveries": merged["recoveries"],
             "particles_injected": merged["injected"],
+            "searches": merged["searches"],
+            "searches_moved": merged["searches_moved"],
             "merge_failures": self.merge_failures,
             "images_replaced": self.images_replaced + self.images_replaced_upstream + self.held_images.replaced,
             "images_waited_for_odometry": self.held_images.released,

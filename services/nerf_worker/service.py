@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -20,11 +21,12 @@ from locnerf.filter.depth_measurement import (
     surface_distance_log_likelihoods,
     warped_depth_log_likelihoods,
 )
+from locnerf.filter.final_search import cross_entropy_search
 from locnerf.filter.measurement import particle_log_likelihoods
 from locnerf.filter.warp import WarpReference, render_reference, warp_log_likelihoods
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.maps.source import map_identity
-from locnerf.messages.schemas import DepthRequest, RefusalReason, UpdateRefusal, UpdateRequest, UpdateResult
+from locnerf.messages.schemas import DepthRequest, RefusalReason, SearchFound, SearchRequest, UpdateRefusal, UpdateRequest, UpdateResult
 from locnerf_services.rgbd import depth_observation
 
 logger = logging.getLogger(__name__)
@@ -86,7 +88,7 @@ class NerfWorker:
         )
 
     def handle(self, request: UpdateRequest) -> UpdateResult:
-        """Log-likelihoods of the request's particles (eq. 5 of the paper, log space).
+        """Log-likelihoods of the request's particles (eq. 5 of the paper, log space), and the result of its search when it carries one.
 
         Raises:
             WrongMapError: a request for another map (its ``map_checksum`` is not this worker's).
@@ -102,18 +104,9 @@ class NerfWorker:
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
         poses = poses.to(device)
-        depth = self._depth_observation(request.depth) if request.depth is not None else None
-        reference = None
-        if request.warp is not None and self.render_surface is not None:
-            reference = self._reference(request, depth)
-            log_likelihoods = warp_log_likelihoods(poses, reference, self._image(request), request.intrinsics, request.exponent, request.exposure_gain_range)
-        else:
-            if request.warp is not None and not self._warned_warp:
-                logger.warning("the map cannot place surfaces (an NDC or MLP map): re-projection requests are rendered from every pose instead")
-                self._warned_warp = True
-            log_likelihoods = self._render(request, poses)
-        if request.depth is not None and depth is not None:
-            log_likelihoods = log_likelihoods + self._depth(request.depth, depth, poses, reference).to(log_likelihoods)
+        score = self._likelihood(request)
+        log_likelihoods = score(poses)
+        found = self._search(request.search, score) if request.search is not None else None
         return UpdateResult(
             request_id=request.request_id,
             shard=request.shard,
@@ -123,7 +116,54 @@ class NerfWorker:
             ids=request.ids,
             log_likelihoods=log_likelihoods.cpu().tolist(),
             compute_seconds=time.perf_counter() - started,
+            search=found,
         )
+
+    def _likelihood(self, request: UpdateRequest) -> Callable[[torch.Tensor], torch.Tensor]:
+        """The request's log-likelihood, poses (N, 4, 4) on the map's device -> (N,): the colour term by re-projection
+        (a warp request, on a map that places surfaces) or by rendering the request's pixels, plus the depth term of an
+        RGB-D request. The reference render and the depth image are prepared once."""
+        depth = self._depth_observation(request.depth) if request.depth is not None else None
+        reference = None
+        if request.warp is not None and self.render_surface is not None:
+            reference = self._reference(request, depth)
+            image = self._image(request)
+
+            def colour(poses: torch.Tensor) -> torch.Tensor:
+                return warp_log_likelihoods(poses, reference, image, request.intrinsics, request.exponent, request.exposure_gain_range)
+
+        else:
+            if request.warp is not None and not self._warned_warp:
+                logger.warning("the map cannot place surfaces (an NDC or MLP map): re-projection requests are rendered from every pose instead")
+                self._warned_warp = True
+
+            def colour(poses: torch.Tensor) -> torch.Tensor:
+                return self._render(request, poses)
+
+        if request.depth is None or depth is None:
+            return colour
+
+        def score(poses: torch.Tensor) -> torch.Tensor:
+            values = colour(poses)
+            return values + self._depth(request.depth, depth, poses, reference).to(values)
+
+        return score
+
+    def _search(self, search: SearchRequest, score: Callable[[torch.Tensor], torch.Tensor]) -> SearchFound:
+        """The request's search (:func:`locnerf.filter.final_search.cross_entropy_search`) on its own likelihood ``score``."""
+        mean = torch.tensor(search.mean, dtype=torch.float64)
+        try:
+            validate_poses(mean, name="search mean")
+        except (InvalidPoseError, ValueError) as error:
+            raise RequestError(str(error)) from None
+        found = cross_entropy_search(
+            mean,
+            torch.tensor(search.covariance, dtype=torch.float64),
+            lambda poses: score(poses.to(self.map.device, torch.float32)).cpu(),
+            search.config,
+            torch.Generator().manual_seed(search.seed),
+        )
+        return SearchFound(pose=found.pose.tolist(), log_likelihood=found.log_likelihood, start_log_likelihood=found.start_log_likelihood)
 
     def _render(self, request: UpdateRequest, poses: torch.Tensor) -> torch.Tensor:
         """Eq. 5 by rendering the request's pixels from every pose (N, 4, 4) -> (N,)."""

@@ -10,6 +10,7 @@ import torch
 
 from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.estimate import ParticleEstimate
+from locnerf.filter.final_search import CrossEntropyConfig
 from locnerf.filter.keyframes import index_from_views
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses, keyframe_draws, refining_draws
 from locnerf.geometry import make_pose, relative_pose, se3_log, so3_exp
@@ -194,3 +195,22 @@ def test_a_log_average_is_not_lifted_by_one_sharp_update():
         assert monitor.log_slow == pytest.approx(
             0.95 * expected + 0.05 * 20.0 if average == "log" else math.log(0.95 * math.exp(expected) + 0.05 * math.exp(20.0))
         )
+
+
+def test_searches_are_due_on_the_updates_after_the_refining_ones():
+    search = CrossEntropyConfig(start_position=0.05)
+    monitor = RecoveryMonitor(RecoveryConfig(enabled=True, relocalize_updates=2, search=search, search_updates=2))
+    monitor.refine(2)
+    assert monitor.take_search() is None
+    monitor.observe(0.0)
+    assert monitor.take_search() is None  # still refining
+    monitor.observe(0.0)  # the last refining update
+    assert [monitor.take_search() for _ in range(3)] == [search, search, None]
+    monitor.refine(1)
+    monitor.observe(0.0)
+    monitor.reset()  # a re-initialisation forgets them
+    assert monitor.take_search() is None
+    without = RecoveryMonitor(RecoveryConfig(enabled=True))
+    without.refine(1)
+    without.observe(0.0)
+    assert without.take_search() is None

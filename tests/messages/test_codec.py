@@ -8,6 +8,7 @@ import msgpack
 import numpy as np
 import pytest
 
+from locnerf.filter.final_search import CrossEntropyConfig
 from locnerf.messages import codec, keys, schemas
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -44,6 +45,30 @@ EXAMPLES = [
         intrinsics=INTRINSICS,
     ),
     schemas.UpdateResult(request_id="r", shard=0, worker_id="w", epoch=1, generation=2, ids=[7], log_likelihoods=[-math.inf], compute_seconds=0.1),
+    schemas.UpdateRequest(
+        request_id="r",
+        shard=0,
+        map_checksum="ab" * 32,
+        epoch=1,
+        generation=2,
+        ids=[7],
+        poses=[sum(EYE, [])],
+        pixels=[[1.0, 2.0]],
+        observed_rgb=[[0.1, 0.2, 0.3]],
+        intrinsics=INTRINSICS,
+        search=schemas.SearchRequest(mean=EYE, covariance=COV, config=CrossEntropyConfig(start_position=0.05), seed=9),
+    ),
+    schemas.UpdateResult(
+        request_id="r",
+        shard=0,
+        worker_id="w",
+        epoch=1,
+        generation=2,
+        ids=[7],
+        log_likelihoods=[1.0],
+        compute_seconds=0.1,
+        search=schemas.SearchFound(pose=EYE, log_likelihood=3.5, start_log_likelihood=1.0),
+    ),
     schemas.UpdateRefusal(request_id="r", shard=1, worker_id="w", reason="failed", detail="OutOfMemoryError: CUDA out of memory", map_checksum="cd" * 32),
     schemas.InitialPoseCommand(stamp=0.0, T_world_cam=EYE, covariance=COV),
     schemas.GlobalLocalizationCommand(stamp=0.0),
@@ -229,3 +254,16 @@ def test_stamps_carry_whole_nanoseconds_exactly_and_must_agree_with_the_seconds(
         with pytest.raises(codec.DecodeError) as error:
             codec.decode(_envelope(body | {"T_odom_body": EYE}), schemas.Odometry)
         assert error.value.kind == "invalid", body
+
+
+def test_search_parts_must_carry_a_pose_and_a_six_by_six_covariance():
+    sheared = [row[:] for row in EYE]
+    sheared[3] = [0.0, 0.0, 0.0, 2.0]
+    with pytest.raises(ValueError, match=r"pose: expected last row \[0, 0, 0, 1\]"):
+        schemas.SearchRequest(mean=sheared, covariance=COV, config=CrossEntropyConfig(), seed=1)
+    with pytest.raises(ValueError, match="covariance: expected a 6×6 matrix"):
+        schemas.SearchRequest(mean=EYE, covariance=[row[:5] for row in COV], config=CrossEntropyConfig(), seed=1)
+    with pytest.raises(ValueError, match="elite=9 > candidates=8"):
+        schemas.SearchRequest(mean=EYE, covariance=COV, config={"candidates": 8, "elite": 9}, seed=1)
+    with pytest.raises(ValueError, match="pose: expected finite entries"):
+        schemas.SearchFound(pose=[[math.nan] * 4] * 3 + [[0.0, 0.0, 0.0, 1.0]], log_likelihood=0.0, start_log_likelihood=0.0)

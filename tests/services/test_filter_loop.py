@@ -17,7 +17,7 @@ from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
 from locnerf.maps.keyframes import build_keyframe_index
 from locnerf.messages.codec import SCHEMA_VERSION, decode, encode
-from locnerf.messages.schemas import FilterStatus, GlobalLocalizationCommand, InitialPoseCommand
+from locnerf.messages.schemas import FilterStatus, GlobalLocalizationCommand, InitialPoseCommand, SearchFound
 from locnerf.sim.events import GroundTruthEvent
 from locnerf.sim.world import ProceduralWorld
 from locnerf_services.filter_loop.__main__ import FilterProcessConfig, build_loop
@@ -192,10 +192,12 @@ def test_results_with_other_ids_unknown_or_late_requests_are_told_apart(world, g
     result = NerfWorker(world, "w1").handle(request)
     harness.loop.handle_result(encode(result.model_copy(update={"ids": [i + 1 for i in result.ids]})))
     harness.loop.handle_result(encode(result.model_copy(update={"request_id": "never-issued"})))
+    unasked = SearchFound(pose=eye.tolist(), log_likelihood=1.0, start_log_likelihood=0.0)
+    harness.loop.handle_result(encode(result.model_copy(update={"search": unasked})))  # a search result the request did not ask for
     harness.answer(request)  # completes the update
     harness.answer(request)  # the same result again: late, not bad
     counters = harness.loop.counters()
-    assert counters["bad_result_mismatch"] == 1 and counters["bad_unknown_request"] == 1
+    assert counters["bad_result_mismatch"] == 2 and counters["bad_unknown_request"] == 1
     assert counters["late_results"] == 1 and counters["updates_merged"] == 1
 
 

@@ -167,3 +167,38 @@ def test_repeated_updates_on_one_image_wait_for_the_previous_merge(world) -> Non
                 while harness.requests:
                     harness.answer(harness.requests.pop(0)[1])
         assert started == expected
+
+
+def test_after_the_refining_updates_shard_0_of_the_next_update_carries_a_search_whose_find_moves_the_cloud(world) -> None:
+    """A keyframe start with one refining update and ``recovery.search``: the first update carries no search, the
+    second carries one on its first shard only (the snapshot's weighted mean), the worker's find moves the cloud
+    on the merge, and the third carries none."""
+    generator = torch.Generator().manual_seed(3)
+    keyframe_poses = torch.stack([world.sample_camera_pose(generator) for _ in range(60)])
+    camera = keyframe_poses[17] @ se3_exp(torch.tensor([0.0, 0.01, 0.0, 0.02, 0.0, -0.02], dtype=torch.float64))
+    settings = preset(
+        "llff",
+        keyframe_start={"share": 0.9, "refine_updates": 1},
+        measurement={"pixels": 64, "ray_budget": 6000},
+        # any spread: after one refining update the seeded cloud is still wider than the default search_max_spread
+        recovery={"enabled": True, "search": {"start_position": 0.02, "iterations": 2, "candidates": 16, "elite": 4}, "search_max_spread": 10.0},
+    )
+    index = build_keyframe_index(world.render_rays, keyframe_poses, world.default_intrinsics)
+    harness = Harness(world, FilterLoopConfig(updates_per_image=3), localizer_config=settings, keyframes=index)
+    harness.add_worker("w1")
+    harness.add_worker("w2")
+    harness.collect(harness.loop.handle_odometry(odometry_payload(0.0, torch.eye(4, dtype=torch.float64))))
+    harness.loop.predict_pending()
+    harness.collect(harness.loop.handle_image(image_payload(world, 0.0, camera)))
+    carried = []
+    for _ in range(3):
+        harness.tick()
+        carried.append([request.search for _, request in harness.requests])
+        while harness.requests:
+            harness.answer(harness.requests.pop(0)[1])
+    assert carried[0] == [None, None] and carried[2] == [None, None]
+    search, other = carried[1]
+    assert search is not None and other is None
+    assert search.config == settings.recovery.search
+    counters = harness.loop.localizer.counters
+    assert (counters["merged"], counters["searches"], counters["searches_moved"]) == (3, 1, 1)

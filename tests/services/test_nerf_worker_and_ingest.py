@@ -25,12 +25,14 @@ from locnerf.filter.depth_measurement import (
     surface_distance_log_likelihoods,
     warped_depth_log_likelihoods,
 )
+from locnerf.filter.final_search import CrossEntropyConfig
 from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels
 from locnerf.filter.warp import render_reference, warp_log_likelihoods
+from locnerf.geometry.metrics import translation_error
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp
 from locnerf.geometry.so3 import so3_exp
 from locnerf.messages.codec import decode, decode_image, decode_rgbd, encode
-from locnerf.messages.schemas import DepthRequest, Odometry, UpdateRequest, WarpRequest
+from locnerf.messages.schemas import DepthRequest, Odometry, SearchRequest, UpdateRequest, WarpRequest
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import GroundTruthEvent, ImageEvent, OdometryEvent, depth_millimetres
 from locnerf.sim.sensors import VioConfig, simulate_odometry
@@ -92,6 +94,30 @@ def test_worker_applies_the_requested_exposure_invariant_likelihood(world, gener
     assert not torch.allclose(expected, plain)
     with pytest.raises(ValueError, match=r"exposure_gain_range=\(1.5, 2.0\): expected 0 < low <= 1 <= high"):
         UpdateRequest.model_validate(request.model_dump() | {"exposure_gain_range": (1.5, 2.0)})
+
+
+def test_worker_searches_on_the_requests_own_likelihood(world, generator):
+    """A request carrying a search answers with the best pose the cross-entropy search found from a start 3 cm off,
+    scored on the request's own pixels: its reported log-likelihood is the measurement model's at that pose (the oracle),
+    at least the start's, and the pose lies closer to the camera than the start; a request without one answers none."""
+    request, poses, _, _ = _request(world, generator, count=2)
+    truth = poses[0].double()
+    intrinsics = world.default_intrinsics
+    pixels = sample_pixels(intrinsics.height, intrinsics.width, 256, generator)
+    colours = observed_colours(world.render_image(truth), pixels)
+    start = truth @ se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.03, 0.0, 0.0], dtype=torch.float64))
+    search = SearchRequest(
+        mean=start.tolist(), covariance=torch.eye(6).mul(1e-8).tolist(), config=CrossEntropyConfig(start_position=0.03, start_rotation_deg=1.0), seed=4
+    )
+    request = request.model_copy(update={"pixels": pixels.tolist(), "observed_rgb": colours.tolist(), "search": search})
+    found = NerfWorker(world, "w").handle(request).search
+    pose = torch.tensor(found.pose, dtype=torch.float64)
+    expected = particle_log_likelihoods(torch.stack((pose, start)).float(), pixels, colours, intrinsics, world.render_rays)
+    assert found.log_likelihood == pytest.approx(float(expected[0]), abs=1e-3)
+    assert found.start_log_likelihood == pytest.approx(float(expected[1]), abs=1e-3)
+    assert found.log_likelihood >= found.start_log_likelihood
+    assert float(translation_error(pose, truth)) < float(translation_error(start, truth))
+    assert NerfWorker(world, "w").handle(request.model_copy(update={"search": None})).search is None
 
 
 def test_worker_rejects_pixels_outside_the_image_and_non_rigid_poses(world, generator):
