@@ -16,6 +16,20 @@ INTRINSICS = PinholeIntrinsics(fx=20.0, fy=20.0, cx=2.0, cy=1.5, width=4, height
 EYE = [[1.0, 0.0, 0.0, 0.5], [0.0, 1.0, 0.0, -1.0], [0.0, 0.0, 1.0, 2.0], [0.0, 0.0, 0.0, 1.0]]
 COV = [[0.01 if i == j else 0.0 for j in range(6)] for i in range(6)]
 
+REQUEST = schemas.UpdateRequest(
+    request_id="r",
+    shard=0,
+    map_checksum="ab" * 32,
+    epoch=1,
+    generation=2,
+    ids=[7],
+    poses=[sum(EYE, [])],
+    pixels=[[1.0, 2.0]],
+    observed_rgb=[[0.1, 0.2, 0.3]],
+    intrinsics=INTRINSICS,
+)
+RESULT = schemas.UpdateResult(request_id="r", shard=0, worker_id="w", epoch=1, generation=2, ids=[7], log_likelihoods=[-math.inf], compute_seconds=0.1)
+
 EXAMPLES = [
     schemas.Odometry(stamp=1.5, frame_id="odom", T_odom_body=EYE, covariance=COV),
     schemas.PoseStamped(stamp=2.0, T_world_cam=EYE),
@@ -32,43 +46,10 @@ EXAMPLES = [
         map_checksum="ab" * 32,
         counters={"x": 1},
     ),
-    schemas.UpdateRequest(
-        request_id="r",
-        shard=0,
-        map_checksum="ab" * 32,
-        epoch=1,
-        generation=2,
-        ids=[7],
-        poses=[sum(EYE, [])],
-        pixels=[[1.0, 2.0]],
-        observed_rgb=[[0.1, 0.2, 0.3]],
-        intrinsics=INTRINSICS,
-    ),
-    schemas.UpdateResult(request_id="r", shard=0, worker_id="w", epoch=1, generation=2, ids=[7], log_likelihoods=[-math.inf], compute_seconds=0.1),
-    schemas.UpdateRequest(
-        request_id="r",
-        shard=0,
-        map_checksum="ab" * 32,
-        epoch=1,
-        generation=2,
-        ids=[7],
-        poses=[sum(EYE, [])],
-        pixels=[[1.0, 2.0]],
-        observed_rgb=[[0.1, 0.2, 0.3]],
-        intrinsics=INTRINSICS,
-        search=schemas.SearchRequest(mean=EYE, covariance=COV, config=CrossEntropyConfig(start_position=0.05), seed=9),
-    ),
-    schemas.UpdateResult(
-        request_id="r",
-        shard=0,
-        worker_id="w",
-        epoch=1,
-        generation=2,
-        ids=[7],
-        log_likelihoods=[1.0],
-        compute_seconds=0.1,
-        search=schemas.SearchFound(pose=EYE, log_likelihood=3.5, start_log_likelihood=1.0),
-    ),
+    REQUEST,
+    RESULT,
+    REQUEST.model_copy(update={"search": schemas.SearchRequest(mean=EYE, covariance=COV, config=CrossEntropyConfig(start_position=0.05), seed=9)}),
+    RESULT.model_copy(update={"search": schemas.SearchFound(pose=EYE, log_likelihood=3.5, start_log_likelihood=1.0)}),
     schemas.UpdateRefusal(request_id="r", shard=1, worker_id="w", reason="failed", detail="OutOfMemoryError: CUDA out of memory", map_checksum="cd" * 32),
     schemas.InitialPoseCommand(stamp=0.0, T_world_cam=EYE, covariance=COV),
     schemas.GlobalLocalizationCommand(stamp=0.0),
