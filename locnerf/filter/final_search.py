@@ -45,14 +45,20 @@ from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 
+MAX_ITERATIONS = 50
+"""Most cross-entropy rounds a search may ask for (a search travels in update requests: a worker is not held for hours)."""
+
+MAX_CANDIDATES = 4096
+"""Most poses per round a search may ask for."""
+
 
 class CrossEntropyConfig(BaseModel):
     """The cross-entropy search's budget and spreads (module docstring), on whatever likelihood it is given."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    iterations: int = Field(6, ge=1, description="Cross-entropy rounds.")
-    candidates: int = Field(64, ge=2, description="Poses rendered per round (the current mean among them).")
+    iterations: int = Field(6, ge=1, le=MAX_ITERATIONS, description="Cross-entropy rounds.")
+    candidates: int = Field(64, ge=2, le=MAX_CANDIDATES, description="Poses rendered per round (the current mean among them).")
     elite: int = Field(8, ge=2, description="Best candidates that give the next round's mean and covariance.")
     inflation: float = Field(2.0, gt=0, description="The first round's covariance is the cloud's times inflation².")
     min_position: float = Field(0.002, ge=0, description="Floor of the search's position standard deviation per axis (map units).")

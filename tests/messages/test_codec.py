@@ -237,7 +237,7 @@ def test_stamps_carry_whole_nanoseconds_exactly_and_must_agree_with_the_seconds(
         assert error.value.kind == "invalid", body
 
 
-def test_search_parts_must_carry_a_pose_and_a_six_by_six_covariance():
+def test_search_parts_must_carry_a_pose_a_six_by_six_covariance_and_a_bounded_budget():
     sheared = [row[:] for row in EYE]
     sheared[3] = [0.0, 0.0, 0.0, 2.0]
     with pytest.raises(ValueError, match=r"pose: expected last row \[0, 0, 0, 1\]"):
@@ -246,5 +246,9 @@ def test_search_parts_must_carry_a_pose_and_a_six_by_six_covariance():
         schemas.SearchRequest(mean=EYE, covariance=[row[:5] for row in COV], config=CrossEntropyConfig(), seed=1)
     with pytest.raises(ValueError, match="elite=9 > candidates=8"):
         schemas.SearchRequest(mean=EYE, covariance=COV, config={"candidates": 8, "elite": 9}, seed=1)
+    with pytest.raises(ValueError, match="less than or equal to 50"):  # a worker is not held for hours
+        schemas.SearchRequest(mean=EYE, covariance=COV, config={"iterations": 10**9}, seed=1)
+    with pytest.raises(ValueError, match="less than or equal to 4096"):
+        schemas.SearchRequest(mean=EYE, covariance=COV, config={"candidates": 10**7}, seed=1)
     with pytest.raises(ValueError, match="pose: expected finite entries"):
         schemas.SearchFound(pose=[[math.nan] * 4] * 3 + [[0.0, 0.0, 0.0, 1.0]], log_likelihood=0.0, start_log_likelihood=0.0)
