@@ -22,17 +22,14 @@ from pydantic import BaseModel, ConfigDict, Field
 from locnerf.filter import initialization
 from locnerf.filter.ancestor_scores import ancestor_log_likelihoods, failures_as_impossible
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
+from locnerf.filter.cloud_search import PoseSearch, cloud_within, pose_search, search_move
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig, redrawn_positions
 from locnerf.filter.depth_measurement import (
     DepthObservation,
     SurfaceDistanceLookup,
-    rendered_depth_log_likelihoods,
-    sample_depth_pixels,
-    surface_distance_log_likelihoods,
-    warped_depth_log_likelihoods,
 )
 from locnerf.filter.estimate import ParticleEstimate, estimate_from_particles
-from locnerf.filter.final_search import CrossEntropyConfig, FinalSearchConfig, FinalSearchResult, cross_entropy_search
+from locnerf.filter.final_search import FinalSearchConfig, FinalSearchResult, cross_entropy_search
 from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_start
 from locnerf.filter.keyframes import KeyframeIndex
 from locnerf.filter.kld import KldConfig, kld_resample
@@ -40,19 +37,14 @@ from locnerf.filter.lineage import NO_ANCESTOR, Lineage
 from locnerf.filter.measurement import (
     MeasurementConfig,
     RenderRays,
-    observed_colours,
-    particle_log_likelihoods,
-    sample_pixels_of_image,
 )
 from locnerf.filter.motion import MotionNoiseConfig, PivotNoise, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
 from locnerf.filter.tempering import TemperingConfig, tempered, tempering_exponent
-from locnerf.filter.warp import SurfaceRays, WarpReference, render_reference, warp_log_likelihoods, warp_reference_pose
-from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
-from locnerf.geometry.metrics import rotation_error_deg, translation_error
-from locnerf.geometry.se3 import pose_inverse
+from locnerf.filter.update_likelihood import update_likelihood
+from locnerf.filter.warp import SurfaceRays, warp_reference_pose
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -118,37 +110,6 @@ class UpdateSnapshot:
     generation: int
     ids: torch.Tensor
     poses: torch.Tensor
-
-
-@dataclass(frozen=True)
-class PoseSearch:
-    """A search an update carries (``recovery.search``): from ``mean`` (4, 4) float64 with the cloud's
-    ``covariance`` (6, 6) float64 (tangent space, rotation first), both of the update's snapshot, its draws
-    seeded by ``seed``; ``moved`` (4, 4) float64 is the product of the searches' moves of the cloud before the
-    snapshot (:meth:`Localizer.move_by_search` discounts those that came after it)."""
-
-    config: CrossEntropyConfig
-    mean: torch.Tensor
-    covariance: torch.Tensor
-    seed: int
-    moved: torch.Tensor
-
-
-@dataclass(frozen=True)
-class UpdateLikelihood:
-    """One update's log-likelihood on fixed pixels (and reference, depth points).
-
-    Attributes:
-        score: poses (K, 4, 4) on the localizer's device -> (K,) log-likelihoods.
-        rays_per_pose: rays rendered for each pose scored.
-        fixed_rays: rays rendered once for the update (a re-projection's reference).
-        warped: the colour term re-projects a reference render (:mod:`locnerf.filter.warp`).
-    """
-
-    score: Callable[[torch.Tensor], torch.Tensor]
-    rays_per_pose: int
-    fixed_rays: int
-    warped: bool
 
 
 class MergeOutcome(enum.StrEnum):
@@ -531,7 +492,22 @@ class Localizer:
             )
         self.seed_from_image(image, intrinsics)
         snap = self.snapshot()
-        likelihood = self._update_likelihood(snap, image, intrinsics, render_rays, render_surface, depth, surface_distance)
+        reference_pose = self.warp_reference(snap)
+        if reference_pose is not None and render_surface is None:
+            raise ValueError("measurement.warp is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave warp unset for it")
+        likelihood = update_likelihood(
+            self.config.measurement,
+            self.generator,
+            self.device,
+            snap.poses.shape[0],
+            reference_pose,
+            image,
+            intrinsics,
+            render_rays,
+            render_surface,
+            depth,
+            surface_distance,
+        )
         log_likelihoods = likelihood.score(snap.poses)
         rays = likelihood.fixed_rays + likelihood.rays_per_pose * snap.poses.shape[0]
         search = self.search_for(snap)
@@ -551,110 +527,24 @@ class Localizer:
             self.move_by_search(search, found)
         return dataclasses.replace(report, rays=rays)
 
-    def _update_likelihood(
-        self,
-        snap: UpdateSnapshot,
-        image: torch.Tensor,
-        intrinsics: PinholeIntrinsics,
-        render_rays: RenderRays,
-        render_surface: SurfaceRays | None,
-        depth: DepthObservation | None,
-        surface_distance: SurfaceDistanceLookup | None,
-    ) -> UpdateLikelihood:
-        """The likelihood of an update of ``snap`` on ``image``: its pixels drawn (or its reference rendered) once,
-        and the depth term's pixels (checked by :meth:`update`: the map offers what the settings need)."""
-        config = self.config.measurement
-        reference_pose = self.warp_reference(snap)
-        reference = None
-        if reference_pose is not None:
-            if render_surface is None:
-                raise ValueError("measurement.warp is set but the map cannot place surfaces in its frame (an NDC or MLP map): leave warp unset for it")
-            looked_up = config.depth is not None and config.depth.likelihood == "surface_distance"
-            depth_pixels = config.depth.pixels if depth is not None and not looked_up else 0
-            depth_camera, T_cam_depth = (depth.intrinsics, depth.T_cam_depth) if depth is not None else (None, None)
-            reference = render_reference(render_surface, reference_pose, intrinsics, config, self.generator, depth_pixels, depth_camera, T_cam_depth)
-            observed_image = image.to(self.device)
-
-            def colour(poses: torch.Tensor) -> torch.Tensor:
-                return warp_log_likelihoods(poses, reference, observed_image, intrinsics, config.exponent, config.exposure_gain_range)
-
-            colour_rays, fixed_rays = 0, reference.rays
-        else:
-            pixels = sample_pixels_of_image(image, config, self.generator, config.pixels_for(snap.poses.shape[0]))
-            observed = observed_colours(image, pixels).to(self.device)
-            on_device = pixels.to(self.device)
-
-            def colour(poses: torch.Tensor) -> torch.Tensor:
-                return particle_log_likelihoods(
-                    poses, on_device, observed, intrinsics, render_rays, config.exponent, config.ray_chunk, config.exposure_gain_range
-                )
-
-            colour_rays, fixed_rays = len(pixels), 0
-        if depth is None:
-            return UpdateLikelihood(colour, colour_rays, fixed_rays, reference is not None)
-        depth_term, depth_rays = self._depth_term(depth, reference, render_surface, surface_distance)
-
-        def score(poses: torch.Tensor) -> torch.Tensor:
-            values = colour(poses)
-            return values + depth_term(poses).to(values)
-
-        return UpdateLikelihood(score, colour_rays + depth_rays, fixed_rays, reference is not None)
-
-    def _depth_term(
-        self,
-        depth: DepthObservation,
-        reference: WarpReference | None,
-        render_surface: SurfaceRays | None,
-        surface_distance: SurfaceDistanceLookup | None,
-    ) -> tuple[Callable[[torch.Tensor], torch.Tensor], int]:
-        """The depth term, poses (N, 4, 4) -> (N,), on pixels drawn once, and the rays it renders per pose: looked up in the
-        surface-distance layer (``likelihood = "surface_distance"``), else re-projected from the ``reference`` of a warped
-        update, else rendered from every pose."""
-        config = self.config.measurement
-        if config.depth.likelihood == "surface_distance":
-            pixels = sample_depth_pixels(depth, config.depth, self.generator).to(self.device)
-            return lambda poses: surface_distance_log_likelihoods(poses, depth, pixels, surface_distance, config.depth), 0
-        if reference is not None:
-            return lambda poses: warped_depth_log_likelihoods(poses, reference.depth_points, depth, config.depth), 0
-        pixels = sample_depth_pixels(depth, config.depth, self.generator).to(self.device)
-        return lambda poses: rendered_depth_log_likelihoods(poses, depth, pixels, render_surface, config.depth, config.ray_chunk), len(pixels)
-
     def search_for(self, snap: UpdateSnapshot) -> PoseSearch | None:
         """The search an update of ``snap`` carries (``recovery.search`` after the refining updates), from the snapshot's
         weighted mean and covariance; None when none is due, or while the cloud is wider than ``recovery.search_max_spread``
         (the search stays due)."""
-        if not self._recovery.search_due:
+        weights = self._require_particles().weights
+        if not self._recovery.search_due or not cloud_within(snap.poses, weights, self.config.recovery.search_max_spread):
             return None
-        weights = self._require_particles().weights.double().cpu()
-        poses = snap.poses.double().cpu()
-        if weighted_position_spread(poses[:, :3, 3], weights) > self.config.recovery.search_max_spread:
-            return None
-        config = self._recovery.take_search()
-        mean, covariance = weighted_pose_mean_and_covariance(poses, weights)
         seed = int(torch.randint(2**62, (1,), generator=self.generator))
         self.counters["searches"] += 1
-        return PoseSearch(config, mean, covariance, seed, self._moved.clone())
+        return pose_search(self._recovery.take_search(), snap.poses, weights, seed, self._moved)
 
     def move_by_search(self, search: PoseSearch, found: FinalSearchResult) -> bool:
         """Move every particle so that the snapshot's mean lands on the pose the search found, when it scores
-        ``recovery.search_min_gain`` nats or more above the mean; returns whether it moved.
-
-        The move is ``C = found · mean⁻¹ · D⁻¹`` composed on the left (the world frame's: the odometry composed on
-        the right since the snapshot stays), ``D`` the searches' moves merged since the snapshot (a search of an
-        update that was in flight meanwhile): a cloud that an earlier search already moved is not moved twice."""
-        gain = found.log_likelihood - found.start_log_likelihood
-        moved = gain >= self.config.recovery.search_min_gain and math.isfinite(gain)
-        logger.info(
-            "search: best pose %.3f map units, %.2f deg from the estimate, %.2f nats above it: %s",
-            float(translation_error(found.pose, search.mean)),
-            float(rotation_error_deg(found.pose, search.mean)),
-            gain,
-            "moving the cloud" if moved else "kept",
-        )
-        if not moved:
+        ``recovery.search_min_gain`` nats or more above the mean (:func:`locnerf.filter.cloud_search.search_move`:
+        a cloud already moved since the snapshot is not moved twice); returns whether it moved."""
+        offset = search_move(search, found, self._moved, self.config.recovery.search_min_gain)
+        if offset is None:
             return False
-        since = self._moved @ pose_inverse(search.moved)
-        offset = found.pose.double().cpu() @ pose_inverse(search.mean.double().cpu()) @ pose_inverse(since)
         particles = self._require_particles()
         particles.poses = offset.to(self.device, self.dtype) @ particles.poses
         self._moved = offset @ self._moved

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 
 import torch
 
-from locnerf.filter.localizer import PoseSearch, UpdateSnapshot
+from locnerf.filter.cloud_search import PoseSearch
+from locnerf.filter.localizer import UpdateSnapshot
 from locnerf.messages.keys import WorkerToken
 from locnerf.messages.schemas import (
     DepthRequest,

@@ -9,9 +9,9 @@ import torch
 
 from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.annealing import AnnealingConfig
+from locnerf.filter.cloud_search import PoseSearch
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.final_search import CrossEntropyConfig, FinalSearchResult
-from locnerf.filter.localizer import PoseSearch
 from locnerf.filter.measurement import MeasurementConfig
 from locnerf.filter.motion import MotionNoiseConfig
 from locnerf.filter.recovery import RecoveryConfig
