@@ -1,11 +1,22 @@
 """An update's log-likelihoods, computed on a snapshot, turned into each current particle's: failed
-computations made impossible, each particle given its snapshot ancestor's value (design section 3)."""
+computations made impossible, each particle given its snapshot ancestor's value, and the particles
+drawn since the snapshot given a stand-in (design section 3)."""
 
 from __future__ import annotations
+
+import logging
 
 import torch
 
 from locnerf.filter.lineage import NO_ANCESTOR, lookup
+from locnerf.geometry.averaging import chordal_rotation_mean
+from locnerf.geometry.so3 import so3_log
+
+logger = logging.getLogger(__name__)
+
+RIDGE = 1e-9
+"""Added to the scored cloud's tangent covariance, times its largest variance (plus 1e-12 absolute), before whitening: a
+cloud flat along an axis (all scored particles copies of one) stays invertible."""
 
 
 def failures_as_impossible(log_likelihoods: torch.Tensor) -> torch.Tensor:
@@ -14,13 +25,62 @@ def failures_as_impossible(log_likelihoods: torch.Tensor) -> torch.Tensor:
     return log_likelihoods.masked_fill(failed, -torch.inf)
 
 
-def ancestor_log_likelihoods(ids: torch.Tensor, log_likelihoods: torch.Tensor, ancestors: torch.Tensor) -> torch.Tensor:
+def ancestor_log_likelihoods(ids: torch.Tensor, log_likelihoods: torch.Tensor, ancestors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Each current particle's log-likelihood (N,) float64: its ancestor's, from the snapshot's ``ids`` (K,) and
     ``log_likelihoods`` (K,); particles with no ancestor in the snapshot (injected or re-drawn since, ``ancestors``
-    (N,) :data:`NO_ANCESTOR`) get the median of the finite ones (−inf when there is none)."""
+    (N,) :data:`NO_ANCESTOR`) get the median of the finite ones (−inf when there is none).
+
+    Returns:
+        The log-likelihoods (N,) and which particles got the median stand-in (N,) bool.
+    """
     order = torch.argsort(ids)
     per_particle = lookup(ids[order], log_likelihoods[order], ancestors, float("nan"))
     finite = torch.isfinite(log_likelihoods)
     stand_in = log_likelihoods[finite].median() if bool(finite.any()) else -torch.inf
-    per_particle[torch.isnan(per_particle) | (ancestors == NO_ANCESTOR)] = stand_in
-    return per_particle
+    unscored = torch.isnan(per_particle) | (ancestors == NO_ANCESTOR)
+    per_particle[unscored] = stand_in
+    return per_particle, unscored
+
+
+def borrowed_log_likelihoods(per_particle: torch.Tensor, unscored: torch.Tensor, poses: torch.Tensor, reach: float) -> torch.Tensor:
+    """Unscored particles inside the scored cloud take the log-likelihood of their nearest scored neighbour.
+
+    A particle drawn after the snapshot (a refining draw of recovery, a re-draw of convergence protection) was
+    not measured by this update. Where it lies among measured particles, the nearest one's value estimates its
+    own far better than the median does (with a sharp likelihood the median is nats under the best, so the draw
+    would die at this resampling before any update had weighed it). Each pose is read as ``(Log(R̄ᵀR), R̄ᵀt)``
+    about the scored particles' chordal mean rotation R̄, and distances are Mahalanobis distances under the
+    scored particles' covariance of those: "near" follows the cloud's own scale in each of the six axes. A
+    particle farther than ``reach`` from their mean lies outside the measured support (a recovery draw around
+    a far keyframe) and keeps the median.
+
+    Args:
+        per_particle: (N,) float64 log-likelihoods from :func:`ancestor_log_likelihoods` (not changed).
+        unscored: (N,) bool, the particles that got the median stand-in.
+        poses: (N, 4, 4) the particles' current poses (all moved alike since the snapshot).
+        reach: Mahalanobis radius of the measured support (0: every unscored particle keeps the median).
+    Returns:
+        (N,) float64 log-likelihoods.
+    """
+    unscored = unscored.cpu()
+    scored = ~unscored & torch.isfinite(per_particle)
+    if reach <= 0 or not bool(unscored.any()) or int(scored.sum()) < 2:
+        return per_particle
+    poses = poses.detach().double().cpu()
+    rotation = chordal_rotation_mean(poses[scored, :3, :3])
+    residuals = torch.cat((so3_log(rotation.T @ poses[:, :3, :3]), poses[:, :3, 3] @ rotation), dim=-1)
+    residuals = residuals - residuals[scored].mean(dim=0)
+    covariance = torch.cov(residuals[scored].T)
+    covariance = covariance + torch.eye(6, dtype=torch.float64) * (RIDGE * float(torch.diagonal(covariance).max()) + 1e-12)
+    whitened = torch.linalg.solve_triangular(torch.linalg.cholesky(covariance), residuals.T, upper=False).T
+    candidates = torch.nonzero(unscored).squeeze(1)
+    candidates = candidates[torch.linalg.vector_norm(whitened[candidates], dim=-1) <= reach]
+    if candidates.numel() == 0:
+        return per_particle
+    scored_index = torch.nonzero(scored).squeeze(1)
+    # Whitened coordinates are of order one: float32 orders the distances (and runs at twice float64's speed).
+    nearest = torch.cdist(whitened[candidates].float(), whitened[scored_index].float()).argmin(dim=1)
+    borrowed = per_particle.clone()
+    borrowed[candidates] = per_particle[scored_index[nearest]]
+    logger.debug("%d of %d particles drawn since the snapshot took a measured neighbour's log-likelihood", candidates.numel(), int(unscored.sum()))
+    return borrowed
