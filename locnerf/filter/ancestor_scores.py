@@ -1,6 +1,6 @@
 """An update's log-likelihoods, computed on a snapshot, turned into each current particle's: failed
 computations made impossible, each particle given its snapshot ancestor's value, and the particles
-drawn since the snapshot given a stand-in (design section 3)."""
+drawn since the snapshot given a stand-in (design section 3); and the best of them that recovery watches."""
 
 from __future__ import annotations
 
@@ -84,3 +84,33 @@ def borrowed_log_likelihoods(per_particle: torch.Tensor, unscored: torch.Tensor,
     borrowed[candidates] = per_particle[scored_index[nearest]]
     logger.debug("%d of %d particles drawn since the snapshot took a measured neighbour's log-likelihood", candidates.numel(), int(unscored.sum()))
     return borrowed
+
+
+def current_log_likelihoods(
+    ids: torch.Tensor, log_likelihoods: torch.Tensor, ancestors: torch.Tensor, poses: torch.Tensor, borrow_reach: float
+) -> torch.Tensor:
+    """Each current particle's log-likelihood (N,) float64 from a result on a snapshot: failures made −inf
+    (:func:`failures_as_impossible`), each particle its ancestor's value (:func:`ancestor_log_likelihoods`), and
+    particles drawn since inside the measured cloud their nearest measured neighbour's (:func:`borrowed_log_likelihoods`).
+
+    Args:
+        ids: (K,) the snapshot's particle ids; log_likelihoods: (K,) the result; ancestors: (N,) each current
+            particle's ancestor id in the snapshot; poses: (N, 4, 4) the current poses; borrow_reach: see
+            :func:`borrowed_log_likelihoods`.
+    """
+    per_particle, unscored = ancestor_log_likelihoods(ids, failures_as_impossible(log_likelihoods), ancestors)
+    return borrowed_log_likelihoods(per_particle, unscored, poses, borrow_reach)
+
+
+def best_weighed_log_likelihood(parent_ids: torch.Tensor, per_particle: torch.Tensor) -> float:
+    """Largest log-likelihood (N,) -> float among the particles that descend from weighed ones (``parent_ids`` (N,)).
+
+    Recovery compares this over time rather than the mean likelihood of augmented MCL: with
+    eq. 5's sharp likelihood the mean mostly measures how tight the cluster is (a looser cluster
+    has fewer particles near the peak), so annealing or the injections themselves would keep
+    triggering injections after the filter has recovered. Particles injected at the last
+    resampling or re-drawn by convergence protection since (``parent_ids`` :data:`NO_ANCESTOR`)
+    are left out for the same reason.
+    """
+    survivors = (parent_ids != NO_ANCESTOR).cpu()
+    return float(per_particle[survivors].max() if bool(survivors.any()) else per_particle.max())

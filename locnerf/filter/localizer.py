@@ -20,7 +20,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from locnerf.filter import initialization
-from locnerf.filter.ancestor_scores import ancestor_log_likelihoods, borrowed_log_likelihoods, failures_as_impossible
+from locnerf.filter.ancestor_scores import best_weighed_log_likelihood, current_log_likelihoods
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage, noise_scale, particle_count, stage_for_spread
 from locnerf.filter.cloud_search import PoseSearch, cloud_within, pose_search, search_move
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig, redrawn_positions
@@ -383,8 +383,7 @@ class Localizer:
             logger.info("dropping an update: %s", error)
             return self._record(MergeOutcome.STALE)
 
-        per_particle, unscored = ancestor_log_likelihoods(ids, failures_as_impossible(log_likelihoods), ancestors)
-        per_particle = borrowed_log_likelihoods(per_particle, unscored, particles.poses, self.config.borrow_reach)
+        per_particle = current_log_likelihoods(ids, log_likelihoods, ancestors, particles.poses, self.config.borrow_reach)
         log_weights = particles.log_weights.double().cpu()
         if not bool(torch.isfinite(log_weights + per_particle).any()):
             logger.warning("degenerate update (no current particle has a finite likelihood): particles and weights kept unchanged")
@@ -392,7 +391,7 @@ class Localizer:
 
         combined = log_weights + self._temper(log_weights, per_particle)
         weighed = normalise_log_weights(combined).to(self.device, self.dtype)
-        plan = self._recovery.observe(self._log_best_likelihood(particles, per_particle), kind="warped" if warped else "rendered")
+        plan = self._recovery.observe(best_weighed_log_likelihood(particles.parent_ids, per_particle), kind="warped" if warped else "rendered")
         self.counters["recoveries"] = self._recovery.fired  # injection streaks started: times the filter found itself lost
         injected = self._resample(particles, weighed, plan, find_candidates)
         self._update_ess = effective_sample_size(torch.exp(weighed).double())
@@ -408,20 +407,6 @@ class Localizer:
             self.counters["tempered"] += 1
             logger.debug("update tempered by beta=%.3g", beta)
         return tempered(per_particle, beta)
-
-    @staticmethod
-    def _log_best_likelihood(particles: ParticleSet, per_particle: torch.Tensor) -> float:
-        """Largest log-likelihood (N,) -> float among the particles that descend from weighed ones.
-
-        Recovery compares this over time rather than the mean likelihood of augmented MCL: with
-        eq. 5's sharp likelihood the mean mostly measures how tight the cluster is (a looser cluster
-        has fewer particles near the peak), so annealing or the injections themselves would keep
-        triggering injections after the filter has recovered. Particles injected at the last
-        resampling or re-drawn by convergence protection since (``parent_ids`` :data:`NO_ANCESTOR`)
-        are left out for the same reason.
-        """
-        survivors = (particles.parent_ids != NO_ANCESTOR).cpu()
-        return float(per_particle[survivors].max() if bool(survivors.any()) else per_particle.max())
 
     def _resample(self, particles: ParticleSet, log_weights: torch.Tensor, plan: InjectionPlan, find_candidates: CandidateSource | None) -> int:
         """Resample ``particles`` by the update's normalised ``log_weights`` (N,) to the stage's particle count,

@@ -9,7 +9,7 @@ as in amcl.
 
 Two departures from the textbook, both for eq. 5's sharp likelihood (a power γ = 4 of an inverse
 squared error): the likelihood fed to the averages is the best particle's, not the mean (the
-localizer's choice, see ``Localizer._log_best_likelihood``), and a drop of up to ``τ`` nats
+localizer's choice, see ``ancestor_scores.best_weighed_log_likelihood``), and a drop of up to ``τ`` nats
 (``tolerance``) is tolerated, since a few nats separate a view seen from 2 cm off from one seen
 exactly, or a plain wall from a textured one; τ = 0 is augmented MCL. Optionally (``average = "log"``)
 the averages are of the log-likelihoods, a geometric mean: one sharp update lifts the average of the
