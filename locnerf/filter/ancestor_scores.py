@@ -9,8 +9,8 @@ import logging
 import torch
 
 from locnerf.filter.lineage import NO_ANCESTOR, lookup
-from locnerf.geometry.averaging import chordal_rotation_mean
-from locnerf.geometry.so3 import so3_log
+from locnerf.geometry.averaging import chordal_rotation_mean, tangent_residuals
+from locnerf.geometry.se3 import make_pose
 
 logger = logging.getLogger(__name__)
 
@@ -67,9 +67,9 @@ def borrowed_log_likelihoods(per_particle: torch.Tensor, unscored: torch.Tensor,
     if reach <= 0 or not bool(unscored.any()) or int(scored.sum()) < 2:
         return per_particle
     poses = poses.detach().double().cpu()
-    rotation = chordal_rotation_mean(poses[scored, :3, :3])
-    residuals = torch.cat((so3_log(rotation.T @ poses[:, :3, :3]), poses[:, :3, 3] @ rotation), dim=-1)
-    residuals = residuals - residuals[scored].mean(dim=0)
+    centre = make_pose(chordal_rotation_mean(poses[scored, :3, :3]), poses[scored, :3, 3].mean(dim=0))
+    residuals = tangent_residuals(poses, centre)
+    residuals = residuals - residuals[scored].mean(dim=0)  # the chordal mean is not the rotations' residual mean
     covariance = torch.cov(residuals[scored].T)
     covariance = covariance + torch.eye(6, dtype=torch.float64) * (RIDGE * float(torch.diagonal(covariance).max()) + 1e-12)
     whitened = torch.linalg.solve_triangular(torch.linalg.cholesky(covariance), residuals.T, upper=False).T

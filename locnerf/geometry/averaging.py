@@ -162,6 +162,11 @@ def _covariance_of_residuals(d_rot: torch.Tensor, poses: torch.Tensor, mean: tor
     return (w[:, None] * residual).T @ residual
 
 
+def tangent_residuals(poses: torch.Tensor, mean: torch.Tensor) -> torch.Tensor:
+    """(N, 6) residuals ``(Log(R̄ᵀ R_i), R̄ᵀ (t_i - t̄))`` of poses (N, 4, 4) about ``mean`` (4, 4): rotation first."""
+    return torch.cat((so3_log(mean[:3, :3].transpose(0, 1) @ poses[:, :3, :3]), (poses[:, :3, 3] - mean[:3, 3]) @ mean[:3, :3]), dim=-1)
+
+
 def tangent_covariance(poses: torch.Tensor, mean: torch.Tensor, weights: torch.Tensor | None = None) -> torch.Tensor:
     """6×6 weighted covariance of poses about ``mean`` in the mean's tangent space.
 
@@ -174,5 +179,5 @@ def tangent_covariance(poses: torch.Tensor, mean: torch.Tensor, weights: torch.T
         (6, 6) symmetric positive semi-definite matrix.
     """
     w = _normalised_weights(weights, poses.shape[0], poses)
-    d_rot = so3_log(mean[:3, :3].transpose(0, 1) @ poses[:, :3, :3])
-    return _covariance_of_residuals(d_rot, poses, mean, w)
+    residual = tangent_residuals(poses, mean)
+    return (w[:, None] * residual).T @ residual
