@@ -33,14 +33,12 @@ def oracle(per_particle: torch.Tensor, unscored: torch.Tensor, poses: torch.Tens
     centre = sum(raw(poses[j]) for j in scored) / len(scored)
     inverse = torch.linalg.inv(sum(torch.outer(raw(poses[j]) - centre, raw(poses[j]) - centre) for j in scored) / (len(scored) - 1))
 
-    def residual(pose: torch.Tensor) -> torch.Tensor:
-        return raw(pose) - centre
-
+    residuals = [raw(pose) - centre for pose in poses]
     result = per_particle.clone()
     for i in range(len(poses)):
-        if not unscored[i] or float(residual(poses[i]) @ inverse @ residual(poses[i])) > reach**2:
+        if not unscored[i] or float(residuals[i] @ inverse @ residuals[i]) > reach**2:
             continue
-        distances = [float((residual(poses[i]) - residual(poses[j])) @ inverse @ (residual(poses[i]) - residual(poses[j]))) for j in scored]
+        distances = [float((residuals[i] - residuals[j]) @ inverse @ (residuals[i] - residuals[j])) for j in scored]
         result[i] = per_particle[scored[min(range(len(scored)), key=distances.__getitem__)]]
     return result
 
