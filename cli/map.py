@@ -1,4 +1,4 @@
-"""``locnerf map build|eval|ceiling|score-trials|render|compare|add-surface-distance|prune|info``: build a map from posed images, measure it, look at it."""
+"""``locnerf map build|eval|ceiling|depth-offset|score-trials|render|compare|add-surface-distance|prune|info``: build a map from posed images, measure it, look at it."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from locnerf.data.colour_camera import read_on_map_camera, sfm_training_frames
 from locnerf.data.sfm_poses import check_pose_source
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
+from locnerf.eval.depth_agreement import depth_agreement
 from locnerf.eval.plots import plot_images_beside_renders
 from locnerf.eval.reprojection_ceiling import CeilingConfig, reprojection_ceiling
 from locnerf.eval.trial_renders import read_trials_report, score_trial_renders
@@ -126,6 +127,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ceiling.add_argument("--json", action="store_true", help="print JSON (per view and summary)")
     add_poses_argument(ceiling)
     ceiling.set_defaults(func=run_ceiling)
+
+    offset = commands.add_parser(
+        "depth-offset", help="RGB-D map with a surface-distance layer: how far each frame's own depth, fitted to the layer from its true pose, moves it"
+    )
+    offset.add_argument("map", help="map file with a surface-distance layer")
+    offset.add_argument("--data", required=True, help="RGB-D data-set folder (7-Scenes)")
+    offset.add_argument("--split", default="test", help="the frames to fit (train: the frames the layer was built from)")
+    offset.add_argument("--downscale", type=int)
+    offset.add_argument("--stride", type=int, default=10, help="every N-th frame")
+    offset.add_argument("--points", type=int, default=4000, help="depth readings per frame")
+    offset.add_argument("--seed", type=int, default=0, help="seeds the readings drawn")
+    offset.add_argument("--json", action="store_true", help="print JSON (per frame and summary)")
+    add_poses_argument(offset)
+    offset.set_defaults(func=run_depth_offset)
 
     layer = commands.add_parser(
         "add-surface-distance", help="add (or replace) a map's surface-distance layer from the depth images it was built from (RGB-D data)"
@@ -317,6 +332,21 @@ def run_ceiling(args: argparse.Namespace) -> int:
         for row in report["views"]:
             logger.info("%s", "  ".join(f"{key} {value:.3f}" if isinstance(value, float) else f"{key} {value}" for key, value in row.items()))
         print("  ".join(f"{key} {value:.3f}" if isinstance(value, float) else f"{key} {value}" for key, value in report["summary"].items()))
+    return 0
+
+
+def run_depth_offset(args: argparse.Namespace) -> int:
+    radiance_map = load_map(args.map, "cpu")
+    if radiance_map.surface_distance is None:
+        raise LocnerfInputError(f"map {args.map}: no surface-distance layer; `locnerf map add-surface-distance` adds one from the depth images")
+    frames = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split, args.stride, args.poses)
+    report = depth_agreement(frames, radiance_map.surface_distance, points=args.points, seed=args.seed)
+    if args.json:
+        print(json.dumps(report))
+    else:
+        for row in report["frames"]:
+            logger.info("%s  translation %.4f m  rotation %.3f°", row["name"], row["translation_m"], row["rotation_deg"])
+        print("  ".join(f"{key} {value:.4f}" if isinstance(value, float) else f"{key} {value}" for key, value in report["summary"].items()))
     return 0
 
 

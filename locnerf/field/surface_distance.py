@@ -139,6 +139,10 @@ class SurfaceDistance:
     @torch.no_grad()
     def __call__(self, points: torch.Tensor) -> torch.Tensor:
         """Distances (...) to the nearest surface of map-frame points (..., 3), trilinear, ``truncation`` outside the grid."""
+        return self.lookup(points)
+
+    def lookup(self, points: torch.Tensor) -> torch.Tensor:
+        """:meth:`__call__` with autograd: the distances' gradient with respect to the points (zero outside the grid)."""
         flat = points.reshape(-1, 3).to(self.origin.device, torch.float32)
         normalised = (flat - self.origin) / self._extent * 2 - 1
         sampled = F.grid_sample(self._volume, normalised[None, None, None], mode="bilinear", align_corners=True)

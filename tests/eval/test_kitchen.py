@@ -121,6 +121,27 @@ def test_map_add_surface_distance_writes_a_layer_from_the_training_depth(tiny_ki
     assert load_map(tiny_kitchen_map).surface_distance is not None  # built with one; not rewritten
 
 
+def test_map_depth_offset_fits_each_frames_depth_and_refuses_a_map_without_a_layer(
+    tiny_kitchen_map: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """``locnerf map depth-offset`` on the tiny map's own ten training frames (their readings made its layer): each
+    fit stays within 1 cm and 0.5° of the frame's pose; on two test frames every figure is finite; a map
+    without a surface-distance layer is refused, naming the command that adds one."""
+    argv = ["map", "depth-offset", str(tiny_kitchen_map), "--data", str(KITCHEN), "--downscale", DOWNSCALE, "--json"]
+    report = run_cli(argv + ["--split", "train", "--stride", "60"], capsys)
+    assert report["summary"]["frames"] == 10 == len(report["frames"])
+    assert max(row["translation_m"] for row in report["frames"]) < 0.01 and max(row["rotation_deg"] for row in report["frames"]) < 0.5, report
+    held_out = run_cli(argv + ["--split", "test", "--stride", "200"], capsys)
+    assert [row["name"] for row in held_out["frames"]] == ["seq-02/frame-000600", "seq-02/frame-000800"]
+    assert all(math.isfinite(row["translation_m"]) and math.isfinite(row["rotation_deg"]) for row in held_out["frames"])
+    bare = load_map(tiny_kitchen_map)
+    bare.surface_distance = None
+    without = save_map(bare, tmp_path / "bare.locmap")
+    with caplog.at_level(logging.ERROR):
+        assert main(["map", "depth-offset", str(without), "--data", str(KITCHEN), "--downscale", DOWNSCALE]) == 2
+    assert "no surface-distance layer" in caplog.text and "add-surface-distance" in caplog.text
+
+
 def test_map_ceiling_reports_each_view_and_the_means(tiny_kitchen_map: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture) -> None:
     """``locnerf map ceiling`` on two test frames against the tiny map's 600 training frames (5 nearest each):
     every figure of a view present and finite where it has points, coverage a fraction, means over the views;

@@ -1,0 +1,125 @@
+"""Where a frame's own depth puts its camera in the map: how far the depth term's peak lies from the ground truth.
+
+An RGB-D likelihood multiplies a colour term and a depth term (:mod:`locnerf.filter.depth_measurement`).
+With the map's surface-distance layer (:mod:`locnerf.field.surface_distance`), the depth term of a pose
+depends on ``Σ_j min(d_j², c²)``, ``d_j`` the distance from depth reading j, placed by the pose's depth
+camera, to the nearest surface the training frames measured. For each frame, this module starts at the
+ground-truth pose and minimises that sum over the pose (L-BFGS on the trilinear lookup's gradient, with
+the rotation and translation as one tangent vector ``ξ``, ``T = T_true · Exp(ξ)``): the pose the depth
+term alone favours near the truth. Its distance from the truth is the **depth offset**: where the map's
+measured geometry and the ground truth of a frame disagree (a drift of the ground truth between sequences,
+the depth sensor's own distortion, the depth camera's calibration), a filter weighing depth is pulled
+that far from the truth by that term, whatever its colour term says.
+
+On frames the layer was built from (the training split), the offset measures the fit itself: their
+readings placed by their own poses made the surface.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+
+import torch
+
+from locnerf.data.posed_images import PosedImages
+from locnerf.errors import DatasetError, LocnerfInputError
+from locnerf.field.surface_distance import SurfaceDistance
+from locnerf.geometry import rotation_error_deg, translation_error
+from locnerf.geometry.se3 import se3_exp
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.rays import camera_directions_from_pixels
+
+TRANSLATION_WITHIN = 0.03
+"""Metres: the kitchen's tracking and back-on-track bound, for the share of frames whose offset is within it (and 1°)."""
+ROTATION_WITHIN_DEG = 1.0
+
+
+def depth_camera_points(
+    depth: torch.Tensor, intrinsics: PinholeIntrinsics, count: int, generator: torch.Generator, min_depth: float, max_depth: float
+) -> torch.Tensor:
+    """Up to ``count`` valid readings of a depth image (Hd, Wd), drawn uniformly without replacement, as points
+    (P, 3) float64 in the depth camera's frame (OpenGL axes), the pixel coordinates as the filter's depth term takes them."""
+    rows, columns = torch.nonzero(torch.isfinite(depth) & (depth >= min_depth) & (depth <= max_depth), as_tuple=True)
+    chosen = torch.randperm(len(rows), generator=generator)[:count]
+    rows, columns = rows[chosen], columns[chosen]
+    pixels = torch.stack((columns, rows), dim=-1).double()
+    return camera_directions_from_pixels(pixels, intrinsics).double() * depth[rows, columns].double()[:, None]
+
+
+def fit_depth_to_surface(start: torch.Tensor, points: torch.Tensor, T_cam_depth: torch.Tensor, surface: SurfaceDistance, iterations: int = 30) -> torch.Tensor:
+    """The pose (4, 4) float64 near ``start`` (4, 4) whose depth camera ``T · T_cam_depth`` places the depth-camera
+    points (P, 3) closest to the layer's surfaces: the minimum of ``mean_j d_j²``, ``d_j`` the lookup (truncated
+    by the layer), by L-BFGS (strong Wolfe line search) over ``ξ`` in ``start · Exp(ξ)``."""
+    xi = torch.zeros(6, dtype=torch.float64, requires_grad=True)
+    optimiser = torch.optim.LBFGS([xi], lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe")
+    offset = T_cam_depth.double()
+
+    def loss() -> torch.Tensor:
+        optimiser.zero_grad()
+        depth_pose = start.double() @ se3_exp(xi) @ offset
+        world = points @ depth_pose[:3, :3].T + depth_pose[:3, 3]
+        value = surface.lookup(world).double().pow(2).mean()
+        value.backward()
+        return value
+
+    optimiser.step(loss)
+    return start.double() @ se3_exp(xi.detach())
+
+
+def depth_agreement(
+    frames: PosedImages, surface: SurfaceDistance, points: int = 4000, seed: int = 0, min_depth: float = 0.1, max_depth: float = 6.0
+) -> dict[str, object]:
+    """Each frame's depth offset (:func:`fit_depth_to_surface` from its own pose) in metres and degrees.
+
+    Args:
+        frames: frames with depth images, in the map's frame (``frames.normalization.scale`` map units per metre).
+        surface: the map's surface-distance layer.
+        points: readings per frame.
+    Returns:
+        ``{"frames": [{"name", "translation_m", "rotation_deg"}], "summary": {"frames", "translation_median_m",
+        "translation_p90_m", "rotation_median_deg", "rotation_p90_deg", "within_3cm_1deg"}}``.
+    Raises:
+        DatasetError: frames without depth images.
+        LocnerfInputError: ``points`` < 6 (too few to fix a pose).
+    """
+    if frames.depths is None or frames.depth_intrinsics is None:
+        raise DatasetError(f"{frames.source}: the depth offset needs depth images")
+    if points < 6:
+        raise LocnerfInputError(f"points={points}: expected at least 6 readings per frame to fix a pose")
+    generator = torch.Generator().manual_seed(seed)
+    offset = frames.T_cam_depth if frames.T_cam_depth is not None else torch.eye(4, dtype=torch.float64)
+    scale = frames.normalization.scale
+    rows = []
+    for position in range(len(frames)):
+        truth = frames.T_world_cam[position].double()
+        local = depth_camera_points(frames.depths[position], frames.depth_intrinsics, points, generator, min_depth * scale, max_depth * scale)
+        if len(local) < 6:
+            continue
+        fitted = fit_depth_to_surface(truth, local, offset, surface)
+        rows.append(
+            {
+                "name": frames.names[position],
+                "translation_m": float(translation_error(fitted, truth)) / scale,
+                "rotation_deg": float(rotation_error_deg(fitted, truth)),
+            }
+        )
+    return {"frames": rows, "summary": summary_of(rows)}
+
+
+def summary_of(rows: list[dict]) -> dict[str, float | int | None]:
+    """Medians, 90th percentiles (nearest rank) and the share of frames within 3 cm and 1° of the truth."""
+    if not rows:
+        return {"frames": 0}
+    translations = sorted(row["translation_m"] for row in rows)
+    rotations = sorted(row["rotation_deg"] for row in rows)
+    p90 = max(0, math.ceil(0.9 * len(rows)) - 1)
+    within = sum(row["translation_m"] <= TRANSLATION_WITHIN and row["rotation_deg"] <= ROTATION_WITHIN_DEG for row in rows)
+    return {
+        "frames": len(rows),
+        "translation_median_m": statistics.median(translations),
+        "translation_p90_m": translations[p90],
+        "rotation_median_deg": statistics.median(rotations),
+        "rotation_p90_deg": rotations[p90],
+        "within_3cm_1deg": within / len(rows),
+    }
