@@ -116,11 +116,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ceiling = commands.add_parser(
         "ceiling", help="RGB-D data: how well the training frames, re-projected through each held-out view's own depth, explain it, beside the map"
     )
-    ceiling.add_argument("map", help="map file")
-    ceiling.add_argument("--data", required=True, help="RGB-D data-set folder (7-Scenes)")
-    ceiling.add_argument("--split", default="test", help="held-out split")
+    add_map_and_frames_arguments(ceiling, "map file", "RGB-D data-set folder (7-Scenes)", "test", "held-out split")
     ceiling.add_argument("--train-split", default="train", help="the split the map was built from")
-    ceiling.add_argument("--downscale", type=int)
     ceiling.add_argument("--stride", type=int, default=10, help="every N-th held-out view")
     ceiling.add_argument("--candidates", type=int, default=CeilingConfig().candidates, help="training frames tried per view (nearest first)")
     ceiling.add_argument("--device", default="auto")
@@ -131,10 +128,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     offset = commands.add_parser(
         "depth-offset", help="RGB-D map with a surface-distance layer: how far each frame's own depth, fitted to the layer from its true pose, moves it"
     )
-    offset.add_argument("map", help="map file with a surface-distance layer")
-    offset.add_argument("--data", required=True, help="RGB-D data-set folder (7-Scenes)")
-    offset.add_argument("--split", default="test", help="the frames to fit (train: the frames the layer was built from)")
-    offset.add_argument("--downscale", type=int)
+    add_map_and_frames_arguments(
+        offset,
+        "map file with a surface-distance layer",
+        "RGB-D data-set folder (7-Scenes)",
+        "test",
+        "the frames to fit (train: the frames the layer was built from)",
+    )
     offset.add_argument("--stride", type=int, default=10, help="every N-th frame")
     offset.add_argument("--points", type=int, default=4000, help="depth readings per frame")
     offset.add_argument("--seed", type=int, default=0, help="seeds the readings drawn")
@@ -145,10 +145,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     layer = commands.add_parser(
         "add-surface-distance", help="add (or replace) a map's surface-distance layer from the depth images it was built from (RGB-D data)"
     )
-    layer.add_argument("map", help="map file (rewritten in place unless --out)")
-    layer.add_argument("--data", required=True, help="RGB-D data-set folder the map was built from")
-    layer.add_argument("--split", default="train", help="the split the map was built from")
-    layer.add_argument("--downscale", type=int)
+    add_map_and_frames_arguments(
+        layer, "map file (rewritten in place unless --out)", "RGB-D data-set folder the map was built from", "train", "the split the map was built from"
+    )
     layer.add_argument("--voxel", type=float, default=SurfaceDistanceConfig().voxel, help="vertex spacing, map units")
     layer.add_argument("--truncation", type=float, default=SurfaceDistanceConfig().truncation, help="largest stored distance, map units")
     layer.add_argument("--out", help="map file to write (default: MAP)")
@@ -165,6 +164,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.set_defaults(func=run_info)
 
     add_align_command(commands)
+
+
+def add_map_and_frames_arguments(parser: argparse.ArgumentParser, map_help: str, data_help: str, split: str, split_help: str) -> None:
+    """The positional map and the frames a command reads of a data set: ``--data``, ``--split`` (default ``split``), ``--downscale``."""
+    parser.add_argument("map", help=map_help)
+    parser.add_argument("--data", required=True, help=data_help)
+    parser.add_argument("--split", default=split, help=split_help)
+    parser.add_argument("--downscale", type=int)
 
 
 def _split_on_map_camera(radiance_map, data: str, downscale: int | None, split: str = "test", stride: int = 1, poses: str = "dslam"):
