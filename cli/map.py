@@ -11,12 +11,13 @@ import cv2
 import numpy as np
 import torch
 
+from locnerf.config import load_config
 from locnerf.data import read_dataset
 from locnerf.data.colour_camera import read_on_map_camera, sfm_training_frames
 from locnerf.data.sfm_poses import check_pose_source
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
-from locnerf.eval.depth_agreement import depth_agreement
+from locnerf.eval.depth_agreement import ColourPeak, depth_agreement
 from locnerf.eval.plots import plot_images_beside_renders
 from locnerf.eval.reprojection_ceiling import CeilingConfig, reprojection_ceiling
 from locnerf.eval.trial_renders import read_trials_report, score_trial_renders
@@ -138,6 +139,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     offset.add_argument("--stride", type=int, default=10, help="every N-th frame")
     offset.add_argument("--points", type=int, default=4000, help="depth readings per frame")
     offset.add_argument("--seed", type=int, default=0, help="seeds the readings drawn")
+    offset.add_argument("--colour", metavar="CONFIG", help="also the colour term's best pose near the truth, with this localizer file's measurement")
     offset.add_argument("--json", action="store_true", help="print JSON (per frame and summary)")
     add_poses_argument(offset)
     offset.set_defaults(func=run_depth_offset)
@@ -347,7 +349,8 @@ def run_depth_offset(args: argparse.Namespace) -> int:
     if radiance_map.surface_distance is None:
         raise LocnerfInputError(f"map {args.map}: no surface-distance layer; `locnerf map add-surface-distance` adds one from the depth images")
     frames = _split_on_map_camera(radiance_map, args.data, args.downscale, args.split, args.stride, args.poses)
-    report = depth_agreement(frames, radiance_map.surface_distance, points=args.points, seed=args.seed)
+    colour = ColourPeak(radiance_map.render_rays, load_config(args.colour).measurement) if args.colour else None
+    report = depth_agreement(frames, radiance_map.surface_distance, points=args.points, seed=args.seed, colour=colour)
     if args.json:
         print(json.dumps(report))
     else:

@@ -13,26 +13,55 @@ that far from the truth by that term, whatever its colour term says.
 
 On frames the layer was built from (the training split), the offset measures the fit itself: their
 readings placed by their own poses made the surface.
+
+Beside it, the **colour offset** (optional, :class:`ColourPeak`): the colour term's own best pose near the
+truth, found by the single-image final search (:func:`locnerf.filter.final_search.final_search`: the
+cross-entropy method on pixels drawn once, rendered from the map) started at the truth, with the gain in
+nats it found over the truth on those pixels (a small gain: the colour term hardly prefers its peak).
 """
 
 from __future__ import annotations
 
 import math
 import statistics
+from dataclasses import dataclass
 
 import torch
 
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.field.surface_distance import SurfaceDistance
+from locnerf.filter.final_search import FinalSearchConfig, final_search
+from locnerf.filter.measurement import MeasurementConfig
 from locnerf.geometry import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import se3_exp
 from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import RenderRays
 from locnerf.render.rays import camera_directions_from_pixels
 
 TRANSLATION_WITHIN = 0.03
 """Metres: the kitchen's tracking and back-on-track bound, for the share of frames whose offset is within it (and 1°)."""
 ROTATION_WITHIN_DEG = 1.0
+
+
+@dataclass(frozen=True)
+class ColourPeak:
+    """How the colour offset is searched: the map's renderer, the likelihood (``measurement``: exponent, sampling
+    rule, exposure model) and the search (on at most the image's pixels), from the truth with ``rotation_deg`` and
+    ``position`` (map units) standard deviations per axis in its first round."""
+
+    render_rays: RenderRays
+    measurement: MeasurementConfig
+    search: FinalSearchConfig = FinalSearchConfig(pixels=2048, iterations=12, inflation=1.0, min_position=0.002, min_rotation_deg=0.05)
+    rotation_deg: float = 1.5
+    position: float = 0.03
+
+    def offset(self, truth: torch.Tensor, image: torch.Tensor, intrinsics: PinholeIntrinsics, generator: torch.Generator) -> tuple[torch.Tensor, float]:
+        """The colour term's best pose (4, 4) float64 found near ``truth`` for ``image`` (H, W, 3), and its gain in nats over the truth."""
+        spread = torch.tensor([math.radians(self.rotation_deg)] * 3 + [self.position] * 3, dtype=torch.float64)
+        search = self.search.model_copy(update={"pixels": min(self.search.pixels, image.shape[0] * image.shape[1])})
+        found = final_search(truth, torch.diag(spread**2), image, intrinsics, self.render_rays, self.measurement, search, generator)
+        return found.pose, found.log_likelihood - found.start_log_likelihood
 
 
 def depth_camera_points(
@@ -68,9 +97,16 @@ def fit_depth_to_surface(start: torch.Tensor, points: torch.Tensor, T_cam_depth:
 
 
 def depth_agreement(
-    frames: PosedImages, surface: SurfaceDistance, points: int = 4000, seed: int = 0, min_depth: float = 0.1, max_depth: float = 6.0
+    frames: PosedImages,
+    surface: SurfaceDistance,
+    points: int = 4000,
+    seed: int = 0,
+    min_depth: float = 0.1,
+    max_depth: float = 6.0,
+    colour: ColourPeak | None = None,
 ) -> dict[str, object]:
-    """Each frame's depth offset (:func:`fit_depth_to_surface` from its own pose) in metres and degrees.
+    """Each frame's depth offset (:func:`fit_depth_to_surface` from its own pose) in metres and degrees, and with
+    ``colour`` its colour offset.
 
     Args:
         frames: frames with depth images, in the map's frame (``frames.normalization.scale`` map units per metre).
@@ -78,7 +114,9 @@ def depth_agreement(
         points: readings per frame.
     Returns:
         ``{"frames": [{"name", "translation_m", "rotation_deg"}], "summary": {"frames", "translation_median_m",
-        "translation_p90_m", "rotation_median_deg", "rotation_p90_deg", "within_3cm_1deg"}}``.
+        "translation_p90_m", "rotation_median_deg", "rotation_p90_deg", "within_3cm_1deg"}}``; with ``colour``, each
+        frame also has ``colour_translation_m``, ``colour_rotation_deg`` and ``colour_gain_nats``, and the report a
+        ``colour_summary`` of the colour offsets (the same keys).
     Raises:
         DatasetError: frames without depth images.
         LocnerfInputError: ``points`` < 6 (too few to fix a pose).
@@ -88,6 +126,7 @@ def depth_agreement(
     if points < 6:
         raise LocnerfInputError(f"points={points}: expected at least 6 readings per frame to fix a pose")
     generator = torch.Generator().manual_seed(seed)
+    colour_generator = torch.Generator().manual_seed(seed)  # its own: the depth readings drawn do not depend on ``colour``
     offset = frames.T_cam_depth if frames.T_cam_depth is not None else torch.eye(4, dtype=torch.float64)
     scale = frames.normalization.scale
     rows = []
@@ -97,14 +136,20 @@ def depth_agreement(
         if len(local) < 6:
             continue
         fitted = fit_depth_to_surface(truth, local, offset, surface)
-        rows.append(
-            {
-                "name": frames.names[position],
-                "translation_m": float(translation_error(fitted, truth)) / scale,
-                "rotation_deg": float(rotation_error_deg(fitted, truth)),
-            }
-        )
-    return {"frames": rows, "summary": summary_of(rows)}
+        row = {"name": frames.names[position], **offset_of(fitted, truth, scale)}
+        if colour is not None:
+            peak, gain = colour.offset(truth, frames.images[position], frames.intrinsics, colour_generator)
+            row |= {f"colour_{key}": value for key, value in offset_of(peak, truth, scale).items()} | {"colour_gain_nats": gain}
+        rows.append(row)
+    report: dict[str, object] = {"frames": rows, "summary": summary_of(rows)}
+    if colour is not None:
+        report["colour_summary"] = summary_of([{key.removeprefix("colour_"): value for key, value in row.items()} for row in rows])
+    return report
+
+
+def offset_of(pose: torch.Tensor, truth: torch.Tensor, scale: float) -> dict[str, float]:
+    """``translation_m`` and ``rotation_deg`` of ``pose`` (4, 4) from ``truth`` (4, 4), map units ``scale`` per metre."""
+    return {"translation_m": float(translation_error(pose, truth)) / scale, "rotation_deg": float(rotation_error_deg(pose, truth))}
 
 
 def summary_of(rows: list[dict]) -> dict[str, float | int | None]:

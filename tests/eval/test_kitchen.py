@@ -125,15 +125,20 @@ def test_map_depth_offset_fits_each_frames_depth_and_refuses_a_map_without_a_lay
     tiny_kitchen_map: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
     """``locnerf map depth-offset`` on the tiny map's own ten training frames (their readings made its layer): each
-    fit stays within 1 cm and 0.5° of the frame's pose; on two test frames every figure is finite; a map
-    without a surface-distance layer is refused, naming the command that adds one."""
+    fit stays within 1 cm and 0.5° of the frame's pose; on two test frames every figure is finite, the colour term's
+    peak (``--colour``) too; a map without a surface-distance layer is refused, naming the command that adds one."""
     argv = ["map", "depth-offset", str(tiny_kitchen_map), "--data", str(KITCHEN), "--downscale", DOWNSCALE, "--json"]
     report = run_cli(argv + ["--split", "train", "--stride", "60"], capsys)
     assert report["summary"]["frames"] == 10 == len(report["frames"])
     assert max(row["translation_m"] for row in report["frames"]) < 0.01 and max(row["rotation_deg"] for row in report["frames"]) < 0.5, report
-    held_out = run_cli(argv + ["--split", "test", "--stride", "200"], capsys)
+    held_out = run_cli(
+        argv + ["--split", "test", "--stride", "200", "--colour", str(REPO_ROOT / "configs" / "kitchen_live_kidnap_real_odometry_sfm.toml")], capsys
+    )
     assert [row["name"] for row in held_out["frames"]] == ["seq-02/frame-000600", "seq-02/frame-000800"]
-    assert all(math.isfinite(row["translation_m"]) and math.isfinite(row["rotation_deg"]) for row in held_out["frames"])
+    for row in held_out["frames"]:
+        assert all(math.isfinite(row[key]) for key in ("translation_m", "rotation_deg", "colour_translation_m", "colour_rotation_deg")), row
+        assert row["colour_gain_nats"] >= 0.0  # the search's start, the truth, is always a candidate
+    assert held_out["colour_summary"]["frames"] == 2
     bare = load_map(tiny_kitchen_map)
     bare.surface_distance = None
     without = save_map(bare, tmp_path / "bare.locmap")
