@@ -31,13 +31,13 @@ import torch
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.field.surface_distance import SurfaceDistance
+from locnerf.filter.depth_measurement import DepthObservation, reading_points
 from locnerf.filter.final_search import FinalSearchConfig, final_search
 from locnerf.filter.measurement import MeasurementConfig
 from locnerf.geometry import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import se3_exp
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import RenderRays
-from locnerf.render.rays import camera_directions_from_pixels
 
 TRANSLATION_WITHIN = 0.03
 """Metres: the kitchen's tracking and back-on-track bound, for the share of frames whose offset is within it (and 1°)."""
@@ -71,9 +71,8 @@ def depth_camera_points(
     (P, 3) float64 in the depth camera's frame (OpenGL axes), the pixel coordinates as the filter's depth term takes them."""
     rows, columns = torch.nonzero(torch.isfinite(depth) & (depth >= min_depth) & (depth <= max_depth), as_tuple=True)
     chosen = torch.randperm(len(rows), generator=generator)[:count]
-    rows, columns = rows[chosen], columns[chosen]
-    pixels = torch.stack((columns, rows), dim=-1).double()
-    return camera_directions_from_pixels(pixels, intrinsics).double() * depth[rows, columns].double()[:, None]
+    pixels = torch.stack((columns[chosen], rows[chosen]), dim=-1).double()
+    return reading_points(DepthObservation(depth, intrinsics), pixels)
 
 
 def fit_depth_to_surface(start: torch.Tensor, points: torch.Tensor, T_cam_depth: torch.Tensor, surface: SurfaceDistance, iterations: int = 30) -> torch.Tensor:

@@ -50,6 +50,7 @@ __all__ = [
     "SurfaceDistanceLookup",
     "depth_log_likelihoods",
     "read_depth_at",
+    "reading_points",
     "render_depth_image",
     "rendered_depth_log_likelihoods",
     "sample_depth_pixels",
@@ -248,6 +249,14 @@ def warped_depth_log_likelihoods(poses: torch.Tensor, points: torch.Tensor, obse
     return depth_log_likelihoods(poses, -camera[..., 2], read_depth_at(observation, pixels, in_front & surface, config), config)
 
 
+def reading_points(observation: DepthObservation, pixels: torch.Tensor) -> torch.Tensor:
+    """The readings at depth pixels (M, 2) (u, v) as points (M, 3) in the depth camera's frame (OpenGL axes), in the
+    pixels' dtype and on their device: ``D(q) · K⁻¹ q̃``."""
+    index = pixels.long().to(observation.depth.device)
+    readings = observation.depth[index[:, 1], index[:, 0]].to(pixels.device, pixels.dtype)
+    return camera_directions_from_pixels(pixels, observation.intrinsics) * readings[:, None]
+
+
 def surface_distance_log_likelihoods(
     poses: torch.Tensor, observation: DepthObservation, pixels: torch.Tensor, surface_distance: SurfaceDistanceLookup, config: DepthConfig
 ) -> torch.Tensor:
@@ -267,9 +276,7 @@ def surface_distance_log_likelihoods(
     """
     if pixels.ndim != 2 or pixels.shape[-1] != 2:
         raise ValueError(f"pixels: expected shape (M, 2) as (u, v), got {tuple(pixels.shape)}")
-    index = pixels.long().to(observation.depth.device)
-    readings = observation.depth[index[:, 1], index[:, 0]].to(poses.device, poses.dtype)
-    local = camera_directions_from_pixels(pixels.to(poses.device, poses.dtype), observation.intrinsics) * readings[:, None]  # (M, 3)
+    local = reading_points(observation, pixels.to(poses.device, poses.dtype))  # (M, 3)
     depth_poses = observation.depth_poses(poses)
     world = local[None] @ depth_poses[:, :3, :3].transpose(1, 2) + depth_poses[:, None, :3, 3]  # (N, M, 3)
     distances = surface_distance(world).to(torch.float64)
