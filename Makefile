@@ -9,9 +9,10 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	# The CPU build of torch 2.13.0 is pinned: an unpinned torch pulls several GB of CUDA wheels.
-	$(BIN)/pip install --quiet "torch==2.13.0"
-	$(BIN)/pip install --quiet -e ".[test,view,sfm]"
+	# The CPU build of torch 2.13.0 is pinned: an unpinned torch pulls several GB of CUDA wheels. No bytecode is
+	# compiled at install (--no-compile): Python compiles the modules a process imports, once, instead of all of them.
+	$(BIN)/pip install --quiet --no-compile "torch==2.13.0"
+	$(BIN)/pip install --quiet --no-compile -e ".[test,view,sfm]"
 	touch $(STAMP)
 
 install: $(STAMP)
