@@ -98,7 +98,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs=3,
         metavar=("UNITS", "DEGREES", "SECONDS"),
         default=None,
-        help="after a kidnapping: back when both errors stay under these thresholds this long (back_on_track_s; default 0.03 map units, 1 deg, 1 s)",
+        help="after a kidnapping: back when both errors stay under these thresholds this long (back_on_track_s; default 0.03 map units, 1 deg, 1 s); "
+        "the tracked filter's own wait for such a hold: start.back_on_track_while_tracking",
     )
     parser.add_argument("--preset", default="tracking", help="filter preset (tracking, llff, llff_global, jackal)")
     parser.add_argument("--config", default=None, help="TOML localizer configuration (overrides --preset)")
