@@ -182,13 +182,18 @@ def run_tracking(
     )
 
 
+def within(record: TrackingRecord, criterion: ConvergenceConfig) -> torch.Tensor:
+    """(K,) bool: both errors under the criterion's thresholds at each stamp."""
+    return (record.translation_error < criterion.translation) & (record.rotation_error_deg < criterion.rotation_deg)
+
+
 def hold_starts(record: TrackingRecord, begin: int, end: int, criterion: ConvergenceConfig) -> list[bool]:
     """For each index in [begin, end): whether both errors stay under the thresholds for ``hold`` s from it.
 
     The hold window must fit before ``end``.
     """
     stamps = record.stamps
-    good = (record.translation_error < criterion.translation) & (record.rotation_error_deg < criterion.rotation_deg)
+    good = within(record, criterion)
     starts = [False] * (end - begin)
     next_bad = end  # first bad index at or after i, scanning backwards
     for i in range(end - 1, begin - 1, -1):
@@ -224,7 +229,7 @@ def back_on_track_while_tracking(record: TrackingRecord, begin: int, end: int, c
     longest waits (None where the wait is unbounded: no hold starts before ``end``).
     """
     stamps = record.stamps.tolist()
-    good = (record.translation_error[begin:end] < criterion.translation) & (record.rotation_error_deg[begin:end] < criterion.rotation_deg)
+    good = within(record, criterion)[begin:end]
     starts = hold_starts(record, begin, end, criterion)
     waits: list[float] = []
     next_start = None
@@ -258,8 +263,9 @@ def error_statistics(record: TrackingRecord, begin: int, end: int) -> dict[str, 
     }
 
 
-def _phase(record: TrackingRecord, begin: int, end: int, criterion: ConvergenceConfig) -> dict[str, Any]:
-    """Convergence time, updates and after-convergence statistics of one phase [begin, end)."""
+def _phase(record: TrackingRecord, begin: int, end: int, criterion: ConvergenceConfig, hold: ConvergenceConfig | None = None) -> dict[str, Any]:
+    """Convergence time, updates and after-convergence statistics of one phase [begin, end); with ``hold``, also
+    how long the converged filter waits for that criterion's hold (:func:`back_on_track_while_tracking`)."""
     settled = settle_tick(record, begin, end, criterion)
     phase: dict[str, Any] = {"start_s": float(record.stamps[begin]), "converged": settled is not None}
     if settled is None:
@@ -267,6 +273,8 @@ def _phase(record: TrackingRecord, begin: int, end: int, criterion: ConvergenceC
     phase["seconds_to_converge"] = float(record.stamps[settled] - record.stamps[begin])
     phase["updates_to_converge"] = sum(1 for tick in record.update_ticks if begin <= tick <= settled)
     phase["after_convergence"] = error_statistics(record, settled, end)
+    if hold is not None:
+        phase["back_on_track_while_tracking"] = back_on_track_while_tracking(record, settled, end, hold, BACK_ON_TRACK_HORIZON_S)
     return phase
 
 
@@ -280,11 +288,8 @@ def summarize_tracking(record: TrackingRecord, criterion: ConvergenceConfig, bac
         "updates": len(record.update_ticks),
         "wall_seconds": record.seconds,
         "convergence": criterion.model_dump(),
-        "start": _phase(record, 0, split, criterion),
+        "start": _phase(record, 0, split, criterion, hold=back_on_track),
     }
-    settled = settle_tick(record, 0, split, criterion)
-    if settled is not None:
-        summary["start"]["back_on_track_while_tracking"] = back_on_track_while_tracking(record, settled, split, back_on_track, BACK_ON_TRACK_HORIZON_S)
     if record.kidnap_tick is not None:
         summary["kidnap"] = _phase(record, split, count, criterion)
         back = settle_tick(record, split, count, back_on_track)
