@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import math
+import statistics
 import time
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -238,7 +239,7 @@ def back_on_track_while_tracking(record: TrackingRecord, begin: int, end: int, c
             next_start = i
         if stamps[i] + horizon + criterion.hold <= stamps[end - 1]:
             waits.append(math.inf if next_start is None else stamps[next_start] - stamps[i])
-    median = sorted(waits)[(len(waits) - 1) // 2] if waits else math.inf
+    median = statistics.median_low(waits) if waits else math.inf
     return {
         "horizon_s": horizon,
         "share_within": float(good.double().mean()) if end > begin else None,
