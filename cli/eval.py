@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import argparse
 
-from locnerf_cli import eval_single_image, eval_tracking
+from locnerf_cli import eval_place_check, eval_single_image, eval_tracking
 
-EXPERIMENTS = (eval_single_image, eval_tracking)
+EXPERIMENTS = (eval_single_image, eval_tracking, eval_place_check)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

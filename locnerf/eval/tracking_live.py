@@ -117,7 +117,7 @@ def live_rates(observed: LiveObservations) -> dict[str, Any]:
         rates |= {"particles_median": float(counts.median()), "particles_min": int(counts.min()), "particles_max": int(counts.max())}
     if "recoveries" in observed.filter_counters:
         counters = observed.filter_counters
-        rates |= {name: counters.get(name, 0) for name in ("recoveries", "particles_injected", "searches", "searches_moved")}
+        rates |= {name: counters.get(name, 0) for name in ("recoveries", "particles_injected", "searches", "searches_moved", "drops_in_place")}
     if latencies.numel():
         rates |= {f"pose_latency_{name}_ms": float(torch.quantile(latencies, q)) for name, q in (("p50", 0.5), ("p95", 0.95), ("max", 1.0))}
     return rates

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -40,7 +41,15 @@ from locnerf.filter.measurement import (
 )
 from locnerf.filter.motion import MotionNoiseConfig, PivotNoise, propagate_poses
 from locnerf.filter.particles import ParticleSet, normalise_log_weights, weighted_position_spread
-from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses
+from locnerf.filter.recovery import (
+    InjectionPlan,
+    KeyframeCandidates,
+    PlaceCheck,
+    RecoveryConfig,
+    RecoveryMonitor,
+    injection_poses,
+    place_recognized,
+)
 from locnerf.filter.resampling import RESAMPLERS, ResamplerName, effective_sample_size
 from locnerf.filter.tempering import TemperingConfig, tempered, tempering_exponent
 from locnerf.filter.update_likelihood import update_likelihood
@@ -188,7 +197,8 @@ class Localizer:
         self._start_up: tuple[float, float, float] = (0.0, 1.0, 0.0)
         self._update_ess: float | None = None
         self._moved = torch.eye(4, dtype=torch.float64)  # product of the searches' moves so far (world frame)
-        self.counters = {"merged": 0, "stale": 0, "degenerate": 0, "injected": 0, "tempered": 0, "recoveries": 0, "searches": 0, "searches_moved": 0}
+        counted = ("merged", "stale", "degenerate", "injected", "tempered", "recoveries", "searches", "searches_moved", "drops_in_place")
+        self.counters = dict.fromkeys(counted, 0)
 
     # ----------------------------------------------------------------- initialisation
     def initialize(self, poses: torch.Tensor) -> None:
@@ -358,8 +368,9 @@ class Localizer:
             log_likelihoods: (K,) log-likelihoods of those particles; −inf (a failed render, as
                 workers report it), NaN and +inf count as zero likelihood. When no current particle
                 gets a finite likelihood the update is DEGENERATE: nothing changes, recovery is not fed.
-            find_candidates: called, only when this merge injects recovery particles, for the
-                keyframes that match the update's image (e.g. ``lambda: localizer.keyframe_candidates(image, intrinsics)``).
+            find_candidates: called, only when this merge injects recovery particles or checks a low update's
+                place (``recovery.place_check_views``), for the keyframes that match the update's image
+                (e.g. ``lambda: localizer.keyframe_candidates(image, intrinsics)``); at most once.
             warped: the likelihoods come from re-projection (:mod:`locnerf.filter.warp`), not from
                 renders. The two measure different pixels, so their levels differ: when the kind
                 changes, the recovery monitor forgets its averages instead of reading the step as a
@@ -391,11 +402,33 @@ class Localizer:
 
         combined = log_weights + self._temper(log_weights, per_particle)
         weighed = normalise_log_weights(combined).to(self.device, self.dtype)
-        plan = self._recovery.observe(best_weighed_log_likelihood(particles.parent_ids, per_particle), kind="warped" if warped else "rendered")
+        if find_candidates is not None:
+            find_candidates = functools.cache(find_candidates)  # the place check and the injection match the image once
+        looks_in_place = self._place_check(particles, weighed, find_candidates)
+        plan = self._recovery.observe(best_weighed_log_likelihood(particles.parent_ids, per_particle), "warped" if warped else "rendered", looks_in_place)
         self.counters["recoveries"] = self._recovery.fired  # injection streaks started: times the filter found itself lost
+        self.counters["drops_in_place"] = self._recovery.drops_in_place
         injected = self._resample(particles, weighed, plan, find_candidates)
         self._update_ess = effective_sample_size(torch.exp(weighed).double())
         return self._record(MergeOutcome.MERGED, injected, self._update_ess)
+
+    def _place_check(self, particles: ParticleSet, log_weights: torch.Tensor, find_candidates: CandidateSource | None) -> PlaceCheck | None:
+        """The recovery monitor's question for a low update (``recovery.place_check_views`` > 0): do any of the
+        keyframes most like its image lie near the estimate the update's normalised ``log_weights`` (N,) give?
+        None when the check is off or the image cannot be matched."""
+        recovery = self.config.recovery
+        if recovery.place_check_views == 0 or find_candidates is None:
+            return None
+
+        def looks_in_place() -> bool:
+            candidates = find_candidates()
+            if candidates is None:
+                return False
+            estimate = estimate_from_particles(dataclasses.replace(particles, log_weights=log_weights), self.stage).pose
+            views = candidates.poses[: recovery.place_check_views]
+            return place_recognized(views, estimate, recovery.place_check_position, recovery.place_check_rotation_deg)
+
+        return looks_in_place
 
     def _temper(self, log_weights: torch.Tensor, per_particle: torch.Tensor) -> torch.Tensor:
         """The update's log-likelihoods (N,) times the tempering exponent β (:mod:`locnerf.filter.tempering`)."""

@@ -14,6 +14,9 @@ localizer's choice, see ``ancestor_scores.best_weighed_log_likelihood``), and a 
 exactly, or a plain wall from a textured one; τ = 0 is augmented MCL. Optionally (``average = "log"``)
 the averages are of the log-likelihoods, a geometric mean: one sharp update lifts the average of the
 likelihoods to within log(1/α) nats of itself, and the next ordinary updates then read as a drop.
+Where the likelihood cannot tell a dip (a dark or blurred stretch) from a kidnapping, the keyframe index can:
+with ``place_check_views`` > 0 a low update counts toward a detection only when none of the keyframes most
+like its image lies near the estimate (:func:`place_recognized`).
 
 Where the fresh particles go: when the update's image was matched against the map's keyframes
 (:mod:`locnerf.filter.keyframes`), a share ``keyframe_share`` is drawn around the best-matching
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -43,6 +47,7 @@ from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.final_search import CrossEntropyConfig
 from locnerf.filter.initialization import gaussian_particles, global_particles, rotation_about_axis, uniform_particles
 from locnerf.filter.motion import PivotNoise
+from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import make_pose, se3_exp
 
 logger = logging.getLogger(__name__)
@@ -88,6 +93,15 @@ class RecoveryConfig(BaseModel):
         0.0, ge=0, le=1, description="Share of the injected particles drawn around the keyframes that best match the image (when a keyframe index is given)."
     )
     keyframe_count: int = Field(8, ge=1, description="How many best-matching keyframes the keyframe share is spread over (equally).")
+    place_check_views: int = Field(
+        0,
+        ge=0,
+        description="A low update counts toward a detection only when none of this many keyframes most like its image (at most "
+        "keyframe_count) lies within place_check_position and place_check_rotation_deg of the estimate: an image that still looks like "
+        "where the filter believes it is marks a dip in the likelihood (a dark or blurred stretch), not a kidnapping (0: no check).",
+    )
+    place_check_position: float = Field(0.4, gt=0, description="Place check: how far (map units) a matching keyframe may lie from the estimate.")
+    place_check_rotation_deg: float = Field(30.0, gt=0, description="Place check: how far a matching keyframe may be turned from the estimate, degrees.")
     keyframe_position_sigma: float = Field(
         0.5, gt=0, description="Position standard deviation around a keyframe per axis, as a multiple of the keyframes' spacing."
     )
@@ -161,11 +175,28 @@ class RecoveryConfig(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> RecoveryConfig:
+        if self.place_check_views > 0 and self.keyframe_share == 0:
+            raise ValueError(f"place_check_views={self.place_check_views} with keyframe_share=0: expected keyframe_share > 0 (the image is matched only then)")
+        if self.place_check_views > self.keyframe_count:
+            raise ValueError(f"place_check_views={self.place_check_views} > keyframe_count={self.keyframe_count}: expected at most the keyframes matched")
         if self.alpha_fast <= self.alpha_slow:
             raise ValueError(f"alpha_fast={self.alpha_fast} <= alpha_slow={self.alpha_slow}: expected alpha_fast > alpha_slow")
         if self.local_max_radius < self.local_radius:
             raise ValueError(f"local_max_radius={self.local_max_radius} < local_radius={self.local_radius}: expected r_max >= r_0")
         return self
+
+
+PlaceCheck = Callable[[], bool]
+"""Whether the current update's image looks like the estimate's place (asked only of a low update)."""
+
+
+def place_recognized(candidates: torch.Tensor, estimate: torch.Tensor, max_position: float, max_rotation_deg: float) -> bool:
+    """Whether any of the keyframe poses ``candidates`` (C, 4, 4), those most like an image, lies within
+    ``max_position`` (map units) and ``max_rotation_deg`` of ``estimate`` (4, 4): the image still looks
+    like where the filter believes it is. False for no candidates."""
+    candidates, estimate = candidates.double().cpu(), estimate.double().cpu()
+    near = (translation_error(candidates, estimate) <= max_position) & (rotation_error_deg(candidates, estimate) <= max_rotation_deg)
+    return bool(near.any())
 
 
 @dataclass(frozen=True)
@@ -220,6 +251,7 @@ class RecoveryMonitor:
         self.verifying = False
         self.settling: list[float] = []  # the verification's log-likelihoods so far (one kind)
         self.searches = 0  # updates still to carry a search (config.search) since the last refining update
+        self.drops_in_place = 0  # low updates not counted: the image looked like the estimate's place (config.place_check_views)
 
     def reset(self) -> None:
         """Forget the history (after a re-initialisation)."""
@@ -255,9 +287,11 @@ class RecoveryMonitor:
             raise ValueError(f"refining updates={updates}: expected a count >= 0")
         self.refining = updates
 
-    def observe(self, log_mean_likelihood: float, kind: object = None) -> InjectionPlan:
+    def observe(self, log_mean_likelihood: float, kind: object = None, looks_in_place: PlaceCheck | None = None) -> InjectionPlan:
         """Feed one update's log mean likelihood of ``kind`` (any hashable label; a change forgets the
-        averages); return what to inject after its resampling.
+        averages); return what to inject after its resampling. ``looks_in_place``, asked only of a low
+        update, says whether its image looks like the estimate's place (:func:`place_recognized`): such an
+        update does not count toward a detection.
 
         While refining after a detection, the likelihood is not tested (the cloud is converging on
         the new place): each update re-draws ``refine_fraction`` around the posterior; after the last
@@ -277,7 +311,7 @@ class RecoveryMonitor:
         if self.verifying:
             fraction = self._verify(log_mean_likelihood)
         else:
-            fraction = self._test(log_mean_likelihood)
+            fraction = self._test(log_mean_likelihood, looks_in_place)
         growth = config.local_growth**self.streak
         plan = InjectionPlan(
             fraction=fraction,
@@ -289,9 +323,10 @@ class RecoveryMonitor:
         self.refining = config.relocalize_updates if fraction > 0 else 0
         return plan
 
-    def _test(self, log_mean_likelihood: float) -> float:
+    def _test(self, log_mean_likelihood: float, looks_in_place: PlaceCheck | None) -> float:
         """The fraction to inject by the drop of the fast average under the slow one (augmented MCL,
-        with the tolerance and the confirming updates); remembers the slow level of a normal update."""
+        with the tolerance and the confirming updates; a low update whose image ``looks_in_place`` is
+        not counted); remembers the slow level of a normal update."""
         config = self.config
         fraction = 0.0
         if math.isfinite(log_mean_likelihood):
@@ -301,6 +336,10 @@ class RecoveryMonitor:
             if config.enabled:
                 ratio = math.exp(min(0.0, self.log_fast - self.log_slow + config.tolerance))
                 fraction = min(config.max_fraction, max(0.0, 1.0 - ratio))
+        if fraction > 0 and looks_in_place is not None and looks_in_place():
+            self.drops_in_place += 1
+            logger.info("recovery: %.2f nats under the slow level, but the image looks like the estimate's place: not counted", self.log_slow - self.log_fast)
+            fraction = 0.0
         self.low = self.low + 1 if fraction > 0 else 0
         if self.low == 0 and self.log_slow is not None:
             self.tracked[self.kind] = self.log_slow

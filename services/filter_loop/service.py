@@ -554,6 +554,7 @@ class FilterLoop:
             "particles_injected": merged["injected"],
             "searches": merged["searches"],
             "searches_moved": merged["searches_moved"],
+            "drops_in_place": merged["drops_in_place"],
             "merge_failures": self.merge_failures,
             "images_replaced": self.images_replaced + self.images_replaced_upstream + self.held_images.replaced,
             "images_waited_for_odometry": self.held_images.released,

@@ -369,3 +369,26 @@ def filter_exit_counters(logs: Path) -> dict[str, int]:
     """The counters the filter process logged at exit (``filter.log`` in the run's logs folder)."""
     exit_counters = [line for line in (logs / "filter.log").read_text().splitlines() if "counters at exit" in line]
     return ast.literal_eval(exit_counters[-1].split("counters at exit: ", 1)[1])
+
+
+def test_place_check_places_every_test_image_and_refuses_a_configuration_without_keyframes(
+    tiny_kitchen_map: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """The test split at 1 image/s on a coarse view lattice: every image is placed and the pairs counted
+    (structure only: the tiny map's thumbnails are not the real map's); a configuration that draws around
+    no keyframes has no index to check."""
+    config = tmp_path / "lattice.toml"
+    config.write_text(
+        "[keyframe_start]\nshare = 0.9\n[keyframe_start.lattice]\nstep = 0.6\nyaw_step_deg = 90.0\npitches_deg = [-25.0]\n"
+        "[recovery]\nenabled = true\nkeyframe_share = 1.0\nkeyframe_count = 8\nplace_check_views = 4\n"
+    )
+    argv = ["eval", "place-check", "--map", str(tiny_kitchen_map), "--sequence", str(KITCHEN), "--downscale", DOWNSCALE, "--frame-rate", "30"]
+    report = run_cli([*argv, "--image-rate", "1", "--config", str(config), "--json"], capsys)
+    assert (report["views"], report["position"], report["rotation_deg"], report["away"]) == (4, 0.4, 30.0, [0.9, 20.0])
+    assert report["images"] == 14 and 0 <= report["at_own_place"] <= 14 and len(report["not_at_own_place_s"]) == 14 - report["at_own_place"]
+    assert report["away_pairs"] > 0 and 0 <= report["away_pairs_placed_near"] <= report["away_pairs"]
+    no_keyframes = tmp_path / "none.toml"
+    no_keyframes.write_text('preset = "tracking"\n')
+    with caplog.at_level(logging.ERROR):
+        assert main([*argv, "--config", str(no_keyframes), "--views", "4"]) == 2
+    assert "draw around no keyframes" in caplog.text

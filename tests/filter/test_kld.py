@@ -92,7 +92,7 @@ def test_localizer_shrinks_on_convergence_and_late_results_still_merge_by_ancest
     late_report = localizer.merge(late.epoch, late.generation, late.ids, ancestor_ll)
     assert late_report.outcome == "merged"
     assert localizer.particles.count == 100
-    assert localizer.counters == {"merged": 2, "stale": 0, "degenerate": 0, "injected": 0, "tempered": 0, "recoveries": 0, "searches": 0, "searches_moved": 0}
+    assert localizer.counters == dict.fromkeys(localizer.counters, 0) | {"merged": 2}
 
 
 def test_kld_is_off_by_default():

@@ -10,7 +10,15 @@ import torch
 from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.motion import MotionNoiseConfig
-from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses, keyframe_particles
+from locnerf.filter.recovery import (
+    InjectionPlan,
+    KeyframeCandidates,
+    RecoveryConfig,
+    RecoveryMonitor,
+    injection_poses,
+    keyframe_particles,
+    place_recognized,
+)
 from locnerf.geometry import make_pose, rotation_error_deg, se3_exp, se3_log, so3_exp, translation_error
 
 
@@ -62,13 +70,60 @@ def test_confirmation_ignores_a_single_low_update_and_injects_on_a_lasting_drop(
     assert confirmed.low == 0
 
 
+def test_a_low_update_whose_image_looks_in_place_is_not_counted():
+    """confirm_updates = 2: low updates whose image looks like the estimate's place are not counted
+    (and counted as such); the check is asked of low updates only; two low ones that look elsewhere inject."""
+    monitor = RecoveryMonitor(RecoveryConfig(enabled=True, alpha_fast=1.0, tolerance=6.0, confirm_updates=2))
+    asked = []
+
+    def check(answer: bool):
+        return lambda: asked.append(answer) or answer
+
+    for _ in range(10):
+        assert monitor.observe(20.0, looks_in_place=check(True)).fraction == 0.0
+    assert asked == []  # normal updates are not checked
+    for _ in range(4):
+        assert monitor.observe(10.0, looks_in_place=check(True)).fraction == 0.0
+    assert (monitor.drops_in_place, monitor.low, monitor.fired) == (4, 0, 0)
+    assert monitor.observe(10.0, looks_in_place=check(False)).fraction == 0.0
+    assert monitor.observe(10.0, looks_in_place=check(False)).fraction > 0.0
+    assert (len(asked), monitor.drops_in_place, monitor.fired) == (6, 4, 1)
+
+
+def test_place_recognized_matches_a_naive_loop():
+    """Random keyframes around an estimate against a float64 loop over the candidates with the
+    distance and the angle computed from the rotation's trace."""
+    generator = torch.Generator().manual_seed(3)
+    estimate = make_pose(so3_exp(torch.tensor([0.2, -0.4, 0.1], dtype=torch.float64)), torch.tensor([1.0, 0.5, -0.2], dtype=torch.float64))
+    agreed = []
+    for _ in range(200):
+        count = int(torch.randint(1, 5, (1,), generator=generator))
+        offsets = torch.randn(count, 6, generator=generator, dtype=torch.float64) * torch.tensor([0.4, 0.4, 0.4, 0.3, 0.3, 0.3], dtype=torch.float64)
+        candidates = estimate @ se3_exp(offsets)
+        naive = False
+        for pose in candidates:
+            distance = math.dist(pose[:3, 3].tolist(), estimate[:3, 3].tolist())
+            cosine = (float(torch.trace(pose[:3, :3].T @ estimate[:3, :3])) - 1) / 2
+            naive |= distance <= 0.4 and math.degrees(math.acos(max(-1.0, min(1.0, cosine)))) <= 30.0
+        assert place_recognized(candidates, estimate, 0.4, 30.0) == naive
+        agreed.append(naive)
+    assert 20 < sum(agreed) < 180  # both answers occur
+    assert not place_recognized(torch.empty(0, 4, 4, dtype=torch.float64), estimate, 0.4, 30.0)
+
+
 def test_disabled_recovery_never_injects():
     monitor = RecoveryMonitor(RecoveryConfig(enabled=False))
     assert [monitor.observe(v).fraction for v in (0.0, -80.0, -80.0)] == [0.0, 0.0, 0.0]
 
 
 @pytest.mark.parametrize(
-    "fields,message", [({"alpha_slow": 0.5, "alpha_fast": 0.5}, "alpha_fast"), ({"local_radius": 1.0, "local_max_radius": 0.5}, "local_max_radius")]
+    "fields,message",
+    [
+        ({"alpha_slow": 0.5, "alpha_fast": 0.5}, "alpha_fast"),
+        ({"local_radius": 1.0, "local_max_radius": 0.5}, "local_max_radius"),
+        ({"place_check_views": 16, "keyframe_share": 0.0}, "keyframe_share"),
+        ({"place_check_views": 16, "keyframe_share": 0.5, "keyframe_count": 8}, "keyframe_count"),
+    ],
 )
 def test_inconsistent_recovery_settings_are_refused(fields, message):
     with pytest.raises(ValueError, match=message):
@@ -183,6 +238,29 @@ def test_keyframe_candidates_find_a_far_jump_that_local_and_uniform_draws_miss()
     without = [_kidnapped_run(seed, RecoveryConfig(**recovery), jump=far, candidates=candidates) for seed in range(8)]
     assert all(r is not None for r in with_keyframes), with_keyframes
     assert sum(r is not None for r in without) <= 1, without
+
+
+def test_a_jump_is_not_detected_while_the_image_matches_keyframes_at_the_estimate():
+    """The far jump of the test above, eight seeds, with the place check (4 views, 0.3 units, 20°): when
+    the matching keyframes lie at the old place (where the estimate still is) the low updates are not
+    counted and nothing is injected; when they lie at the new place the filter recovers as without the check."""
+    far = make_pose(so3_exp(_UP * math.radians(150.0)) @ _BEFORE[:3, :3], torch.tensor([-1.8, 0.6, -1.0], dtype=torch.float64))
+    near_far = far @ se3_exp(torch.tensor([0.0, 0.07, 0.0, 0.1, 0.0, 0.1], dtype=torch.float64))
+    recovery = RecoveryConfig(
+        enabled=True,
+        max_fraction=0.6,
+        local_share=0.5,
+        alpha_fast=1.0,
+        tolerance=3.0,
+        keyframe_share=0.8,
+        place_check_views=4,
+        place_check_position=0.3,
+        place_check_rotation_deg=20.0,
+    )
+    at_old_place = KeyframeCandidates(torch.stack([_BEFORE, near_far]), spacing=0.2)
+    at_new_place = KeyframeCandidates(torch.stack([near_far, far]), spacing=0.2)
+    assert all(_kidnapped_run(seed, recovery, jump=far, candidates=at_old_place) is None for seed in range(8))
+    assert all(_kidnapped_run(seed, recovery, jump=far, candidates=at_new_place) is not None for seed in range(8))
 
 
 def test_keyframe_draws_spread_equally_around_each_candidate(generator):
