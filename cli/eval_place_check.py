@@ -11,12 +11,13 @@ import json
 
 import torch
 
+from locnerf.config import load_config
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.place_check import place_check_report, place_images
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import WORLD, open_map
 from locnerf.sim.scenario import ScenarioConfig, build_scenario
-from locnerf_cli.eval_tracking import camera_path, localizer_config
+from locnerf_cli.eval_tracking import camera_path
 from locnerf_cli.flags import add_poses_argument
 
 
@@ -45,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.sequence == WORLD:
         raise LocnerfInputError("--sequence world: expected a data-set folder (the procedural world has no fixed sequence of images)")
-    config = localizer_config(argparse.Namespace(config=args.config, no_depth=False, no_recovery=False))
+    config = load_config(args.config)
     if not config.uses_keyframes():
         raise LocnerfInputError(f"--config {args.config}: its recovery and start draw around no keyframes, so there is no index to check")
     recovery = config.recovery

@@ -35,7 +35,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from locnerf.errors import ConfigError
-from locnerf.filter.localizer import LocalizerConfig
+from locnerf.filter.localizer_config import LocalizerConfig
 
 
 def _preset_fields(particles: int, reduced: int, pixels: int, alpha_refine: float, position, rotation, protection: int) -> dict[str, Any]:

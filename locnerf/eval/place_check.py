@@ -22,6 +22,7 @@ from typing import Any
 import torch
 
 from locnerf.filter.keyframes import KeyframeIndex
+from locnerf.filter.recovery import recognized_at
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 
 
@@ -50,14 +51,6 @@ def place_images(index: KeyframeIndex, images: list[torch.Tensor], stamps: torch
         raise ValueError(f"{len(images)} images, stamps {tuple(stamps.shape)}, truths {tuple(truths.shape)}: expected I >= 1 of each")
     placed = torch.stack([index.query(image, views)[0] for image in images])
     return PlacedImages(stamps.double().cpu(), truths.double().cpu(), placed)
-
-
-def recognized_at(views: torch.Tensor, poses: torch.Tensor, max_position: float, max_rotation_deg: float) -> torch.Tensor:
-    """(J, I) bool: whether any of image j's views (J, V, 4, 4) lies within ``max_position`` and
-    ``max_rotation_deg`` of pose i (I, 4, 4), as :func:`~locnerf.filter.recovery.place_recognized` asks."""
-    views, poses = views.double()[:, :, None], poses.double()[None, None]
-    near = (translation_error(views, poses) <= max_position) & (rotation_error_deg(views, poses) <= max_rotation_deg)
-    return near.any(dim=1)
 
 
 def place_check_report(placed: PlacedImages, max_position: float, max_rotation_deg: float, away_position: float, away_rotation_deg: float) -> dict[str, Any]:

@@ -3,14 +3,8 @@ initialisation, recovery, the estimate, and the localizer that ties them togethe
 
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.estimate import ParticleEstimate
-from locnerf.filter.localizer import (
-    Localizer,
-    LocalizerConfig,
-    MergeOutcome,
-    MergeReport,
-    SearchRegion,
-    UpdateSnapshot,
-)
+from locnerf.filter.localizer import Localizer, MergeOutcome, MergeReport, UpdateSnapshot
+from locnerf.filter.localizer_config import LocalizerConfig, SearchRegion
 from locnerf.filter.particles import ParticleSet
 
 __all__ = [

@@ -190,13 +190,19 @@ PlaceCheck = Callable[[], bool]
 """Whether the current update's image looks like the estimate's place (asked only of a low update)."""
 
 
+def recognized_at(views: torch.Tensor, poses: torch.Tensor, max_position: float, max_rotation_deg: float) -> torch.Tensor:
+    """(J, I) bool: whether any of the keyframe poses ``views[j]`` (J, V, 4, 4), those most like image j, lies within
+    ``max_position`` (map units) and ``max_rotation_deg`` of pose i (I, 4, 4). False where V = 0."""
+    views, poses = views.double().cpu()[:, :, None], poses.double().cpu()[None, None]
+    near = (translation_error(views, poses) <= max_position) & (rotation_error_deg(views, poses) <= max_rotation_deg)
+    return near.any(dim=1)
+
+
 def place_recognized(candidates: torch.Tensor, estimate: torch.Tensor, max_position: float, max_rotation_deg: float) -> bool:
     """Whether any of the keyframe poses ``candidates`` (C, 4, 4), those most like an image, lies within
     ``max_position`` (map units) and ``max_rotation_deg`` of ``estimate`` (4, 4): the image still looks
-    like where the filter believes it is. False for no candidates."""
-    candidates, estimate = candidates.double().cpu(), estimate.double().cpu()
-    near = (translation_error(candidates, estimate) <= max_position) & (rotation_error_deg(candidates, estimate) <= max_rotation_deg)
-    return bool(near.any())
+    like where the filter believes it is (:func:`recognized_at` for one image and one pose)."""
+    return bool(recognized_at(candidates[None], estimate[None], max_position, max_rotation_deg)[0, 0])
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import torch
 
 from locnerf.field.protocol import RadianceMap
 from locnerf.filter.keyframes import KeyframeIndex, index_from_views, thumbnail_camera
-from locnerf.filter.localizer import LocalizerConfig
+from locnerf.filter.localizer_config import LocalizerConfig
 from locnerf.geometry.validation import validate_poses
 from locnerf.maps.view_lattice import build_lattice_index
 from locnerf.render.camera import PinholeIntrinsics

@@ -16,7 +16,8 @@ from locnerf.config import PRESETS, load_config, preset
 from locnerf.devices import resolve_device
 from locnerf.errors import ConfigError
 from locnerf.field.map_info import metric_frame_problem
-from locnerf.filter.localizer import Localizer, LocalizerConfig, SearchRegion
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import LocalizerConfig, SearchRegion
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import map_identity, open_map
 from locnerf_services.filter_loop.driver import FilterDriver

@@ -23,7 +23,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import ParticleEstimate
-from locnerf.filter.localizer import Localizer, MergeOutcome, SearchRegion
+from locnerf.filter.localizer import Localizer, MergeOutcome
+from locnerf.filter.localizer_config import SearchRegion
 from locnerf.filter.measurement import MeasurementConfig, observed_colours, sample_pixels_of_image
 from locnerf.geometry.se3 import adjoint, pose_inverse
 from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting, validate_poses

@@ -6,8 +6,8 @@ import math
 
 import torch
 
-from locnerf.eval.place_check import PlacedImages, place_check_report, recognized_at
-from locnerf.filter.recovery import place_recognized
+from locnerf.eval.place_check import PlacedImages, place_check_report
+from locnerf.filter.recovery import place_recognized, recognized_at
 from locnerf.geometry import make_pose, se3_exp, so3_exp
 
 

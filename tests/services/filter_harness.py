@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 
 from locnerf.config import preset
-from locnerf.filter.localizer import Localizer, SearchRegion
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import SearchRegion
 from locnerf.messages import keys
 from locnerf.messages.codec import decode, encode, encode_image
 from locnerf.messages.schemas import ImageHeader, InitialPoseCommand, Odometry, PoseEstimate, UpdateRequest

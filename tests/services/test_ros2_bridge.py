@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from locnerf.config import preset
-from locnerf.filter.localizer import Localizer, SearchRegion
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import SearchRegion
 from locnerf.geometry.se3 import make_pose
 from locnerf.geometry.so3 import so3_exp
 from locnerf.messages import keys

@@ -15,7 +15,8 @@ import pytest
 import torch
 
 from locnerf.config import preset
-from locnerf.filter.localizer import Localizer, SearchRegion
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import SearchRegion
 from locnerf.messages import keys
 from locnerf.messages.codec import decode_rgbd
 from locnerf.render.camera import PinholeIntrinsics
