@@ -6,6 +6,10 @@ in the reverse order of their start (the ingest, started last, stops first), the
 still running after ``stop_timeout`` seconds. Exit codes are kept by name. Config files are the
 pydantic config models dumped to TOML (:func:`write_config`), never text built by hand.
 
+``python -m`` command lines are forked from a warm server that has imported torch once
+(:mod:`locnerf_services.warm_start`): each is still a process of its own, started in milliseconds instead of
+seconds. Other command lines start as a :class:`subprocess.Popen`.
+
 ``locnerf up``, ``loadtest``, ``fuzz``, ``eval tracking --live`` and the integration tests start
 their services through it.
 """
@@ -26,6 +30,7 @@ import tomli_w
 from pydantic import BaseModel
 
 from locnerf_services.transport.config import ENV_CONNECT, ENV_LISTEN, ENV_MODE
+from locnerf_services.warm_start import WarmProcess, can_fork_here, module_of, start_module
 
 logger = logging.getLogger(__name__)
 
@@ -36,6 +41,9 @@ SERVICE_PACKAGES = {
     "router": "locnerf_services.router",
 }
 """The package run by ``python -m`` for each kind of service."""
+
+ServiceProcess = subprocess.Popen | WarmProcess
+"""A started process: ``python -m`` commands are forked warm (locnerf_services.warm_start), any other is a Popen."""
 
 STOP_TIMEOUT_S = 15.0
 """Seconds between SIGTERM and SIGKILL when stopping."""
@@ -99,12 +107,12 @@ class Supervisor:
         self.environment = dict(os.environ if environment is None else environment)
         self.stop_timeout = stop_timeout
         self.cwd = cwd
-        self.processes: dict[str, subprocess.Popen] = {}
+        self.processes: dict[str, ServiceProcess] = {}
         self.exit_codes: dict[str, int] = {}
         self._started: set[str] = set()
         logs.mkdir(parents=True, exist_ok=True)
 
-    def start(self, name: str, command: Sequence[str], environment: Mapping[str, str] | None = None) -> subprocess.Popen:
+    def start(self, name: str, command: Sequence[str], environment: Mapping[str, str] | None = None) -> ServiceProcess:
         """Run ``command`` as ``name``, its output in ``<logs>/<name>.log`` (appended when ``name`` ran before).
 
         Raises:
@@ -112,15 +120,20 @@ class Supervisor:
         """
         if name in self.processes and self.processes[name].poll() is None:
             raise ValueError(f"service {name!r}: already running (pid {self.processes[name].pid}); expected a new name")
-        with open(self.logs / f"{name}.log", "a" if name in self._started else "w") as log:
-            process = subprocess.Popen(list(command), env=dict(environment or self.environment), stdout=log, stderr=subprocess.STDOUT, cwd=self.cwd)
+        log_path, append, env = self.logs / f"{name}.log", name in self._started, dict(environment or self.environment)
+        module = module_of(command)
+        if module is not None and can_fork_here():
+            process: ServiceProcess = start_module(module, command[3:], env, log_path, append=append, cwd=self.cwd)
+        else:
+            with open(log_path, "a" if append else "w") as log:
+                process = subprocess.Popen(list(command), env=env, stdout=log, stderr=subprocess.STDOUT, cwd=self.cwd)
         self.processes[name] = process
         self._started.add(name)
         self.exit_codes.pop(name, None)
         logger.info("started %s (pid %d): %s", name, process.pid, " ".join(command))
         return process
 
-    def start_service(self, name: str, service: str, config: BaseModel, environment: Mapping[str, str] | None = None) -> subprocess.Popen:
+    def start_service(self, name: str, service: str, config: BaseModel, environment: Mapping[str, str] | None = None) -> ServiceProcess:
         """Write ``config`` to ``<logs>/<name>.toml`` and run ``python -m services.<service> --config`` it as ``name``."""
         return self.start(name, service_command(service, write_config(self.logs / f"{name}.toml", config)), environment)
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import subprocess
 import sys
 import threading
 import time
@@ -17,7 +16,7 @@ from locnerf.messages import keys
 from locnerf.messages.codec import DecodeError, decode
 from locnerf.messages.schemas import FilterStatus, PoseEstimate, PoseStamped, UpdateResult
 from locnerf_services.local_hub import LocalHub
-from locnerf_services.supervisor import Supervisor
+from locnerf_services.supervisor import ServiceProcess, Supervisor
 from tests.services.helpers import wait_until
 
 ROBOT = "itest"
@@ -77,11 +76,11 @@ class Stack:
         return self.supervisor.environment
 
     @property
-    def processes(self) -> dict[str, subprocess.Popen]:
+    def processes(self) -> dict[str, ServiceProcess]:
         """The running processes by name."""
         return self.supervisor.processes
 
-    def start(self, name: str, *arguments: str, environment: dict[str, str] | None = None) -> subprocess.Popen:
+    def start(self, name: str, *arguments: str, environment: dict[str, str] | None = None) -> ServiceProcess:
         """``locnerf -v <arguments>`` as ``name``."""
         return self.supervisor.start(name, [sys.executable, "-m", "locnerf_cli.main", "-v", *arguments], environment)
 
