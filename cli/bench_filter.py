@@ -50,7 +50,8 @@ from locnerf.filter.depth_measurement import (
     warped_depth_log_likelihoods,
 )
 from locnerf.filter.estimate import estimate_from_particles
-from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels, sample_pixels_of_image
+from locnerf.filter.measurement import observed_colours, particle_log_likelihoods, sample_pixels, sample_pixels_of_image
+from locnerf.filter.measurement_config import MeasurementConfig, WarpConfig
 from locnerf.filter.motion import propagate_poses
 from locnerf.filter.particles import ParticleSet
 from locnerf.filter.resampling import multinomial_resample, systematic_resample

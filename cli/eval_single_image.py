@@ -32,7 +32,7 @@ from locnerf.eval.real_data import (
     view_in_frame,
 )
 from locnerf.eval.single_image import TrialConfig
-from locnerf.filter import Localizer
+from locnerf.filter.localizer import Localizer
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import open_map
 from locnerf.render.camera import PinholeIntrinsics

@@ -28,7 +28,8 @@ from locnerf.eval.tracking import (
 )
 from locnerf.eval.tracking_plots import plot_tracking_errors
 from locnerf.field.protocol import RadianceMap
-from locnerf.filter import Localizer, LocalizerConfig
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import LocalizerConfig
 from locnerf.maps.keyframes import recovery_keyframes
 from locnerf.maps.source import WORLD, open_map
 from locnerf.odometry.sequence import RGBD, SYNTHETIC

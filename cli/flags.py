@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
 from locnerf.errors import LocnerfInputError
-from locnerf.filter import LocalizerConfig
+
+if TYPE_CHECKING:
+    from locnerf.filter.localizer_config import LocalizerConfig
 
 Model = TypeVar("Model", bound=BaseModel)
 

@@ -12,7 +12,8 @@ from locnerf.config import load_config, preset
 from locnerf.devices import resolve_device
 from locnerf.errors import LocnerfInputError
 from locnerf.eval.single_image import TrialConfig, run_trials, summarize
-from locnerf.filter import Localizer, LocalizerConfig
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import LocalizerConfig
 from locnerf.maps.source import open_map, target_views
 from locnerf_cli.flags import from_flags
 

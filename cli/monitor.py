@@ -5,10 +5,7 @@ from __future__ import annotations
 import collections
 from dataclasses import dataclass
 
-import torch
-
-from locnerf.geometry.metrics import rotation_error_deg, translation_error
-from locnerf.messages.schemas import PoseEstimate, PoseStamped
+from locnerf.messages.schemas import Matrix, PoseEstimate, PoseStamped
 
 
 @dataclass(frozen=True)
@@ -28,14 +25,14 @@ class GroundTruthMatcher:
     """
 
     def __init__(self, capacity: int = 2000) -> None:
-        self._truth: collections.OrderedDict[float, torch.Tensor] = collections.OrderedDict()
+        self._truth: collections.OrderedDict[float, Matrix] = collections.OrderedDict()
         self.capacity = capacity
         self.newest_stamp: float | None = None
         """Stamp of the newest true pose received (None: no ground truth yet)."""
 
     def add_truth(self, message: PoseStamped) -> None:
         """Remember a true pose."""
-        self._truth[message.stamp] = torch.tensor(message.T_world_cam, dtype=torch.float64)
+        self._truth[message.stamp] = message.T_world_cam
         self.newest_stamp = message.stamp if self.newest_stamp is None else max(self.newest_stamp, message.stamp)
         while len(self._truth) > self.capacity:
             self._truth.popitem(last=False)
@@ -46,12 +43,18 @@ class GroundTruthMatcher:
         return estimate.stamp in self._truth or self.newest_stamp is None or self.newest_stamp > estimate.stamp
 
     def error(self, estimate: PoseEstimate) -> PoseError | None:
-        """The estimate's error, or None if no ground truth has its stamp."""
+        """The estimate's error, or None if no ground truth has its stamp.
+
+        torch is imported at the first error, not with the module: ``locnerf echo`` without ground truth never needs it."""
         truth = self._truth.get(estimate.stamp)
         if truth is None:
             return None
-        pose = torch.tensor(estimate.T_world_cam, dtype=torch.float64)
-        return PoseError(estimate.stamp, float(translation_error(pose, truth)), float(rotation_error_deg(pose, truth)))
+        import torch
+
+        from locnerf.geometry.metrics import rotation_error_deg, translation_error
+
+        pose, true_pose = (torch.tensor(matrix, dtype=torch.float64) for matrix in (estimate.T_world_cam, truth))
+        return PoseError(estimate.stamp, float(translation_error(pose, true_pose)), float(rotation_error_deg(pose, true_pose)))
 
 
 def pose_line(estimate: PoseEstimate, error: PoseError | None) -> str:

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from locnerf.filter.depth_measurement import DepthObservation, sample_depth_pixels
-from locnerf.filter.measurement import MeasurementConfig
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.messages.schemas import DepthHeader, DepthRequest, Matrix
 from locnerf.render.camera import PinholeIntrinsics
 

@@ -33,7 +33,7 @@ from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.field.surface_distance import SurfaceDistance
 from locnerf.filter.depth_measurement import DepthObservation, reading_points
 from locnerf.filter.final_search import FinalSearchConfig, final_search
-from locnerf.filter.measurement import MeasurementConfig
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.geometry import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import se3_exp
 from locnerf.render.camera import PinholeIntrinsics

@@ -19,8 +19,8 @@ from locnerf.errors import DatasetError, LocnerfInputError
 from locnerf.eval.paper_logs import LoggedRun, LoggedTrial
 from locnerf.eval.single_image import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION, TrialConfig, TrialResult, run_trial
 from locnerf.field.protocol import RadianceMap, surface_distance_of, surface_renderer
-from locnerf.filter import Localizer
 from locnerf.filter.depth_measurement import DepthObservation
+from locnerf.filter.localizer import Localizer
 from locnerf.geometry import rotation_error_deg, translation_error
 from locnerf.render.camera import PinholeIntrinsics
 

@@ -27,12 +27,13 @@ from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
 from locnerf.field.protocol import RadianceMap, SurfaceRays, surface_distance_of, surface_renderer
-from locnerf.filter import Localizer
 from locnerf.filter.depth_measurement import DepthObservation, SurfaceDistanceLookup
 from locnerf.filter.final_search import final_search
 from locnerf.filter.initialization import uniform
+from locnerf.filter.localizer import Localizer
 from locnerf.geometry import make_pose, rotation_error_deg, translation_error
-from locnerf.render import PinholeIntrinsics, RenderRays
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import RenderRays
 
 logger = logging.getLogger(__name__)
 

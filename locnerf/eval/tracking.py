@@ -30,8 +30,9 @@ from tqdm import tqdm
 
 from locnerf.errors import LocnerfInputError
 from locnerf.field.protocol import RadianceMap, surface_distance_of, surface_renderer
-from locnerf.filter import Localizer, SearchRegion
 from locnerf.filter.depth_measurement import DepthObservation
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import SearchRegion
 from locnerf.geometry import make_pose, relative_pose, rotation_error_deg, se3_exp, translation_error
 from locnerf.sim.scenario import TrackingScenario
 

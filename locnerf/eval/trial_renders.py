@@ -19,8 +19,7 @@ import torch
 
 from locnerf.data.posed_images import PosedImages
 from locnerf.errors import LocnerfInputError
-from locnerf.render import RenderRays
-from locnerf.render.image import render_image
+from locnerf.render.image import RenderRays, render_image
 from locnerf.train import psnr, ssim
 
 TRUTH_TOLERANCE = 1e-5

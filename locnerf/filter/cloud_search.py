@@ -13,8 +13,9 @@ from dataclasses import dataclass
 
 import torch
 
-from locnerf.filter.final_search import CrossEntropyConfig, FinalSearchResult
+from locnerf.filter.final_search import FinalSearchResult
 from locnerf.filter.particles import weighted_position_spread
+from locnerf.filter.search_config import CrossEntropyConfig
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import pose_inverse

@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 import torch
 
-from locnerf.filter.measurement import DepthConfig, draw_uniformly, log_likelihood_from_errors, pixel_coordinates
+from locnerf.filter.measurement import draw_uniformly, log_likelihood_from_errors, pixel_coordinates
+from locnerf.filter.measurement_config import DepthConfig
 from locnerf.filter.warp import SurfaceRays, points_in_cameras, project_camera_points
 from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.image import SurfaceDistanceLookup

@@ -36,65 +36,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field
 
 from locnerf.filter.initialization import gaussian_particles
-from locnerf.filter.measurement import MeasurementConfig, RenderRays, observed_colours, particle_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.measurement import RenderRays, observed_colours, particle_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.filter.motion import PivotNoise
+from locnerf.filter.search_config import CrossEntropyConfig
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
-
-MAX_ITERATIONS = 50
-"""Most cross-entropy rounds a search may ask for (a search travels in update requests: a worker is not held for hours)."""
-
-MAX_CANDIDATES = 4096
-"""Most poses per round a search may ask for."""
-
-
-class CrossEntropyConfig(BaseModel):
-    """The cross-entropy search's budget and spreads (module docstring), on whatever likelihood it is given."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    iterations: int = Field(6, ge=1, le=MAX_ITERATIONS, description="Cross-entropy rounds.")
-    candidates: int = Field(64, ge=2, le=MAX_CANDIDATES, description="Poses rendered per round (the current mean among them).")
-    elite: int = Field(8, ge=2, description="Best candidates that give the next round's mean and covariance.")
-    inflation: float = Field(2.0, gt=0, description="The first round's covariance is the cloud's times inflation².")
-    min_position: float = Field(0.002, ge=0, description="Floor of the search's position standard deviation per axis (map units).")
-    min_rotation_deg: float = Field(0.1, ge=0, description="Floor of the search's rotation standard deviation per axis (degrees).")
-    start_position: float = Field(
-        0.0, ge=0, description="Added to the first round only: position standard deviation per axis (map units), however narrow the cloud is."
-    )
-    start_rotation_deg: float = Field(0.0, ge=0, description="Added to the first round only: rotation standard deviation per axis (degrees).")
-    pivot_depth: float | None = Field(
-        None, gt=0, description="Widen the first round along the valley: swings about the point this far ahead of the camera (map units; None: off)."
-    )
-    pivot_sigma_deg: float = Field(1.0, ge=0, description="Standard deviation of those swings about the camera's x and y axes (degrees).")
-
-    @model_validator(mode="after")
-    def _elite_within_candidates(self) -> CrossEntropyConfig:
-        if self.elite > self.candidates:
-            raise ValueError(f"elite={self.elite} > candidates={self.candidates}: expected at most as many elite as candidates")
-        return self
-
-    def first_round(self, covariance: torch.Tensor) -> torch.Tensor:
-        """(6, 6) float64 covariance of the first round from the cloud's (6, 6), rotation first: inflated, plus the
-        pivot swings (:meth:`valley`), the start spreads and the floors."""
-        covariance = covariance.double().cpu()
-        start = torch.tensor([math.radians(self.start_rotation_deg)] * 3 + [self.start_position] * 3, dtype=torch.float64)
-        return self.inflation**2 * 0.5 * (covariance + covariance.T) + self.valley() + torch.diag(start**2) + self.floor()
-
-    def valley(self) -> torch.Tensor:
-        """(6, 6) float64 covariance of the swings about the pivot point (zero without ``pivot_depth``), rotation first."""
-        if self.pivot_depth is None:
-            return torch.zeros(6, 6, dtype=torch.float64)
-        return PivotNoise.equal_swings(self.pivot_depth, self.pivot_sigma_deg).covariance()
-
-    def floor(self) -> torch.Tensor:
-        """(6, 6) float64 diagonal covariance of the floors, rotation first."""
-        sigmas = [math.radians(self.min_rotation_deg)] * 3 + [self.min_position] * 3
-        return torch.diag(torch.tensor(sigmas, dtype=torch.float64) ** 2)
 
 
 class FinalSearchConfig(CrossEntropyConfig):
@@ -160,6 +111,27 @@ def final_search(
     return cross_entropy_search(mean, covariance, score, config, generator, len(pixels))
 
 
+def first_round_covariance(config: CrossEntropyConfig, covariance: torch.Tensor) -> torch.Tensor:
+    """(6, 6) float64 covariance of the first round from the cloud's (6, 6), rotation first: inflated, plus the
+    pivot swings (:func:`valley_covariance`), the start spreads and the floors."""
+    covariance = covariance.double().cpu()
+    start = torch.tensor([math.radians(config.start_rotation_deg)] * 3 + [config.start_position] * 3, dtype=torch.float64)
+    return config.inflation**2 * 0.5 * (covariance + covariance.T) + valley_covariance(config) + torch.diag(start**2) + floor_covariance(config)
+
+
+def valley_covariance(config: CrossEntropyConfig) -> torch.Tensor:
+    """(6, 6) float64 covariance of the swings about the pivot point (zero without ``pivot_depth``), rotation first."""
+    if config.pivot_depth is None:
+        return torch.zeros(6, 6, dtype=torch.float64)
+    return PivotNoise.equal_swings(config.pivot_depth, config.pivot_sigma_deg).covariance()
+
+
+def floor_covariance(config: CrossEntropyConfig) -> torch.Tensor:
+    """(6, 6) float64 diagonal covariance of the floors, rotation first."""
+    sigmas = [math.radians(config.min_rotation_deg)] * 3 + [config.min_position] * 3
+    return torch.diag(torch.tensor(sigmas, dtype=torch.float64) ** 2)
+
+
 def cross_entropy_search(
     mean: torch.Tensor,
     covariance: torch.Tensor,
@@ -182,7 +154,7 @@ def cross_entropy_search(
     if mean.ndim != 2 or tuple(covariance.shape) != (6, 6):
         raise ValueError(f"cross-entropy search: expected a (4, 4) mean and a (6, 6) covariance, got {tuple(mean.shape)} and {tuple(covariance.shape)}")
     mean = mean.double().cpu()
-    covariance = config.first_round(covariance)
+    covariance = first_round_covariance(config, covariance)
     best_pose, best_score = mean, float(score(mean[None])[0])
     start_score = best_score
     rays = rays_per_pose
@@ -194,5 +166,5 @@ def cross_entropy_search(
         if float(scores[elite[0]]) > best_score:
             best_pose, best_score = candidates[elite[0]], float(scores[elite[0]])
         mean, covariance = weighted_pose_mean_and_covariance(candidates[elite])
-        covariance = covariance + config.floor()
+        covariance = covariance + floor_covariance(config)
     return FinalSearchResult(best_pose, best_score, start_score, rays)

@@ -11,7 +11,7 @@ from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.final_search import FinalSearchConfig
 from locnerf.filter.keyframe_start import KeyframeStartConfig
 from locnerf.filter.kld import KldConfig
-from locnerf.filter.measurement import MeasurementConfig
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.filter.motion import MotionNoiseConfig
 from locnerf.filter.recovery import RecoveryConfig
 from locnerf.filter.resampling import ResamplerName

@@ -44,9 +44,9 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from locnerf.filter.estimate import ParticleEstimate
-from locnerf.filter.final_search import CrossEntropyConfig
 from locnerf.filter.initialization import gaussian_particles, global_particles, rotation_about_axis, uniform_particles
 from locnerf.filter.motion import PivotNoise
+from locnerf.filter.search_config import CrossEntropyConfig
 from locnerf.geometry.metrics import rotation_error_deg, translation_error
 from locnerf.geometry.se3 import make_pose, se3_exp
 

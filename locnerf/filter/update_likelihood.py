@@ -20,7 +20,8 @@ from locnerf.filter.depth_measurement import (
     surface_distance_log_likelihoods,
     warped_depth_log_likelihoods,
 )
-from locnerf.filter.measurement import MeasurementConfig, RenderRays, observed_colours, particle_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.measurement import RenderRays, observed_colours, particle_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.filter.warp import SurfaceRays, WarpReference, render_reference, warp_log_likelihoods
 from locnerf.render.camera import PinholeIntrinsics
 

@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 import torch
 import torch.nn.functional as F
 
-from locnerf.filter.measurement import MeasurementConfig, WarpConfig, draw_uniformly, photometric_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.measurement import draw_uniformly, photometric_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.measurement_config import MeasurementConfig, WarpConfig
 from locnerf.filter.particles import weighted_position_spread
 from locnerf.geometry.averaging import weighted_pose_mean_and_covariance
 from locnerf.render.camera import PinholeIntrinsics

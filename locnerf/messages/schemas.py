@@ -11,13 +11,12 @@ import enum
 import math
 from typing import Annotated, Any
 
-import torch
+import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from locnerf.filter.annealing import AnnealingStage
-from locnerf.filter.final_search import CrossEntropyConfig
-from locnerf.filter.measurement import ExposureGainRange, MeasurementConfig
-from locnerf.geometry.validation import validate_pose_setting
+from locnerf.filter.measurement_config import ExposureGainRange, MeasurementConfig
+from locnerf.filter.search_config import CrossEntropyConfig
 from locnerf.messages.stamps import NANOSECONDS_PER_SECOND, nanoseconds_from_seconds, seconds_from_nanoseconds
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -41,7 +40,12 @@ def _check_pose(value: Matrix, name: str) -> Matrix:
 
 
 def _check_depth_offset(value: Matrix) -> Matrix:
-    """``T_cam_depth``: a finite 4×4 rigid transform (:func:`locnerf.geometry.validation.validate_pose_setting`)."""
+    """``T_cam_depth``: a finite 4×4 rigid transform (:func:`locnerf.geometry.validation.validate_pose_setting`).
+
+    Its torch is imported here, not with the module: the command-line clients and the router read these schemas and
+    never meet a depth image."""
+    from locnerf.geometry.validation import validate_pose_setting
+
     return validate_pose_setting(_check_pose(value, "T_cam_depth"), "T_cam_depth")
 
 
@@ -58,12 +62,14 @@ Covariance6 = Annotated[Matrix, AfterValidator(lambda value: _check_matrix(value
 def _check_covariance(value: Matrix, name: str) -> Matrix:
     """6×6, finite, symmetric, positive semi-definite (checked with a Cholesky of cov + εI)."""
     _check_matrix(value, 6, 6, name)
-    matrix = torch.tensor(value, dtype=torch.float64)
-    if not torch.allclose(matrix, matrix.T, atol=1e-9 * (1 + float(matrix.abs().max()))):
+    matrix = np.array(value, dtype=np.float64)
+    if not np.allclose(matrix, matrix.T, atol=1e-9 * (1 + float(np.abs(matrix).max()))):
         raise ValueError(f"{name}: expected a symmetric matrix")
-    jitter = 1e-12 * (1 + float(matrix.diagonal().abs().max()))
-    if torch.linalg.cholesky_ex(matrix + jitter * torch.eye(6, dtype=torch.float64)).info != 0:
-        raise ValueError(f"{name}: expected a positive semi-definite matrix, eigenvalues {torch.linalg.eigvalsh(matrix).tolist()}")
+    jitter = 1e-12 * (1 + float(np.abs(matrix.diagonal()).max()))
+    try:
+        np.linalg.cholesky(matrix + jitter * np.eye(6))
+    except np.linalg.LinAlgError:
+        raise ValueError(f"{name}: expected a positive semi-definite matrix, eigenvalues {np.linalg.eigvalsh(matrix).tolist()}") from None
     return value
 
 

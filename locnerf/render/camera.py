@@ -14,8 +14,12 @@ s-th pixel keeps pixel 0's centre: :meth:`PinholeIntrinsics.decimated` gives ``c
 
 from __future__ import annotations
 
-import torch
+from typing import TYPE_CHECKING
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+if TYPE_CHECKING:
+    import torch
 
 
 class PinholeIntrinsics(BaseModel):
@@ -77,6 +81,10 @@ class PinholeIntrinsics(BaseModel):
             height=-(-self.height // stride),
         )
 
-    def matrix(self, dtype: torch.dtype = torch.float64) -> torch.Tensor:
-        """The 3×3 calibration matrix K."""
-        return torch.tensor([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=dtype)
+    def matrix(self, dtype: torch.dtype | None = None) -> torch.Tensor:
+        """The 3×3 calibration matrix K, float64 unless ``dtype`` says otherwise.
+
+        torch is imported here, not with the module: the wire schemas hold intrinsics in processes that never render."""
+        import torch
+
+        return torch.tensor([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=dtype or torch.float64)

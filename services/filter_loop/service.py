@@ -25,7 +25,8 @@ from locnerf.field.protocol import MapNormalization
 from locnerf.filter.estimate import ParticleEstimate
 from locnerf.filter.localizer import Localizer, MergeOutcome
 from locnerf.filter.localizer_config import SearchRegion
-from locnerf.filter.measurement import MeasurementConfig, observed_colours, sample_pixels_of_image
+from locnerf.filter.measurement import observed_colours, sample_pixels_of_image
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.geometry.se3 import adjoint, pose_inverse
 from locnerf.geometry.validation import InvalidPoseError, validate_pose_setting, validate_poses
 from locnerf.messages import keys

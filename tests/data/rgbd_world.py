@@ -11,7 +11,7 @@ from locnerf.field.protocol import MapNormalization
 from locnerf.filter.depth_measurement import render_depth_image
 from locnerf.filter.warp import project_points
 from locnerf.geometry import make_pose, se3_exp, so3_exp
-from locnerf.render import PinholeIntrinsics
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.rays import camera_directions_from_pixels
 from locnerf.sim.textures import TextureConfig
 from locnerf.sim.world import ProceduralWorld, WorldConfig

@@ -24,7 +24,7 @@ from locnerf.filter.depth_measurement import render_depth_image
 from locnerf.geometry import opengl_to_opencv, relative_pose, rotation_error_deg, se3_exp, translation_error
 from locnerf.odometry.sequence import OdometrySourceConfig, RecordedReplay, sequence_rgbd_frames, sequence_track
 from locnerf.odometry.tracks import OdometryTrack
-from locnerf.render import PinholeIntrinsics
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import ImageEvent
 from locnerf.sim.paths import read_sequence_path
 from locnerf.sim.scenario import ScenarioConfig, build_scenario, run_times

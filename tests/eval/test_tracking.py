@@ -19,7 +19,7 @@ from locnerf.eval.tracking import (
     settle_tick,
     summarize_tracking,
 )
-from locnerf.filter import Localizer
+from locnerf.filter.localizer import Localizer
 from locnerf.sim.paths import WorldPath
 from locnerf.sim.scenario import ScenarioConfig, build_scenario
 from locnerf.sim.sensors import CameraConfig

@@ -10,7 +10,6 @@ import torch
 from locnerf.config import preset
 from locnerf.data.seven_scenes import depth_points
 from locnerf.field.surface_distance import SurfaceDistance, SurfaceDistanceConfig
-from locnerf.filter import Localizer
 from locnerf.filter.depth_measurement import (
     DepthConfig,
     DepthObservation,
@@ -21,10 +20,11 @@ from locnerf.filter.depth_measurement import (
     surface_distance_log_likelihoods,
     warped_depth_log_likelihoods,
 )
-from locnerf.filter.measurement import WarpConfig
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.measurement_config import WarpConfig
 from locnerf.filter.warp import render_reference
 from locnerf.geometry import make_pose, pose_inverse, so3_exp
-from locnerf.render import PinholeIntrinsics
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.world import ProceduralWorld
 from tests.filter.world_poses import poses_around, true_pose
 

@@ -16,7 +16,8 @@ import pytest
 import torch
 
 from locnerf.filter.final_search import FinalSearchConfig, final_search
-from locnerf.filter.measurement import MeasurementConfig, observed_colours, sample_pixels_of_image
+from locnerf.filter.measurement import observed_colours, sample_pixels_of_image
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.filter.motion import PivotNoise
 from locnerf.geometry import make_pose, rotation_error_deg, se3_exp, translation_error
 from locnerf.render.camera import PinholeIntrinsics

@@ -7,8 +7,9 @@ import math
 import pytest
 import torch
 
-from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.keyframe_start import KeyframeStartConfig, seed_around_keyframes
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import LocalizerConfig, SearchRegion
 from locnerf.filter.recovery import KeyframeCandidates, RecoveryConfig, RecoveryMonitor
 from locnerf.geometry import make_pose, rotation_error_deg, se3_log, so3_exp, translation_error
 from locnerf.maps.keyframes import build_keyframe_index

@@ -9,10 +9,11 @@ import math
 import pytest
 import torch
 
-from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.filter.annealing import AnnealingConfig
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
 from locnerf.filter.kld import KldConfig, kld_bound, kld_resample
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import LocalizerConfig
 from locnerf.filter.resampling import multinomial_resample, systematic_resample
 from locnerf.geometry import make_pose, so3_exp
 

@@ -7,16 +7,19 @@ import math
 import pytest
 import torch
 
-from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.annealing import AnnealingConfig
 from locnerf.filter.cloud_search import PoseSearch
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
-from locnerf.filter.final_search import CrossEntropyConfig, FinalSearchResult
-from locnerf.filter.measurement import MeasurementConfig
+from locnerf.filter.final_search import FinalSearchResult
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import LocalizerConfig, SearchRegion
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.filter.motion import MotionNoiseConfig
 from locnerf.filter.recovery import RecoveryConfig
+from locnerf.filter.search_config import CrossEntropyConfig
 from locnerf.geometry import make_pose, rotation_error_deg, se3_exp, so3_exp, translation_error
-from locnerf.render import PinholeIntrinsics, render_image
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import render_image
 from tests.filter.analytic_field import analytic_render_rays
 
 NO_PROTECTION = ConvergenceProtectionConfig(count=0)

@@ -15,7 +15,8 @@ from locnerf.filter.measurement import (
     sample_pixels,
 )
 from locnerf.geometry import make_pose, so3_exp
-from locnerf.render import PinholeIntrinsics, render_image
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import render_image
 from tests.filter.analytic_field import analytic_render_rays
 
 CAMERA = PinholeIntrinsics.from_fov(40, 30, math.radians(60))

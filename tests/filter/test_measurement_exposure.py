@@ -8,15 +8,11 @@ import pytest
 import torch
 
 from locnerf.filter.initialization import gaussian_particles
-from locnerf.filter.measurement import (
-    MeasurementConfig,
-    exposure_compensated_residuals,
-    observed_colours,
-    particle_log_likelihoods,
-    sample_pixels,
-)
+from locnerf.filter.measurement import exposure_compensated_residuals, observed_colours, particle_log_likelihoods, sample_pixels
+from locnerf.filter.measurement_config import MeasurementConfig
 from locnerf.geometry import make_pose, so3_exp
-from locnerf.render import PinholeIntrinsics, render_image
+from locnerf.render.camera import PinholeIntrinsics
+from locnerf.render.image import render_image
 from tests.filter.analytic_field import analytic_render_rays
 
 CAMERA = PinholeIntrinsics.from_fov(40, 30, math.radians(60))

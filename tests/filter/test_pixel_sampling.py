@@ -7,7 +7,8 @@ import math
 import pytest
 import torch
 
-from locnerf.filter.measurement import MeasurementConfig, gradient_weights, sample_pixels, sample_pixels_of_image
+from locnerf.filter.measurement import gradient_weights, sample_pixels, sample_pixels_of_image
+from locnerf.filter.measurement_config import MeasurementConfig
 
 
 def naive_gradient_weights(image: torch.Tensor) -> torch.Tensor:

@@ -7,8 +7,9 @@ import math
 import pytest
 import torch
 
-from locnerf.filter import Localizer, LocalizerConfig, SearchRegion
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import LocalizerConfig, SearchRegion
 from locnerf.filter.motion import MotionNoiseConfig
 from locnerf.filter.recovery import (
     InjectionPlan,

@@ -10,9 +10,9 @@ import torch
 
 from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.estimate import ParticleEstimate
-from locnerf.filter.final_search import CrossEntropyConfig
 from locnerf.filter.keyframes import index_from_views
 from locnerf.filter.recovery import InjectionPlan, KeyframeCandidates, RecoveryConfig, RecoveryMonitor, injection_poses, keyframe_draws, refining_draws
+from locnerf.filter.search_config import CrossEntropyConfig
 from locnerf.geometry import make_pose, relative_pose, se3_log, so3_exp
 from locnerf.maps.keyframes import joined_index
 from locnerf.render.camera import PinholeIntrinsics

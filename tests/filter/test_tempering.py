@@ -9,9 +9,10 @@ import pytest
 import torch
 from pydantic import ValidationError
 
-from locnerf.filter import Localizer, LocalizerConfig
 from locnerf.filter.annealing import AnnealingConfig, AnnealingStage
 from locnerf.filter.convergence_protection import ConvergenceProtectionConfig
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import LocalizerConfig
 from locnerf.filter.particles import normalise_log_weights
 from locnerf.filter.resampling import effective_sample_size
 from locnerf.filter.tempering import TemperingConfig, tempering_exponent

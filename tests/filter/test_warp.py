@@ -8,18 +8,13 @@ import pytest
 import torch
 
 from locnerf.config import preset
-from locnerf.filter import Localizer, SearchRegion
-from locnerf.filter.measurement import (
-    MeasurementConfig,
-    WarpConfig,
-    observed_colours,
-    particle_log_likelihoods,
-    photometric_log_likelihoods,
-    sample_pixels_of_image,
-)
+from locnerf.filter.localizer import Localizer
+from locnerf.filter.localizer_config import SearchRegion
+from locnerf.filter.measurement import observed_colours, particle_log_likelihoods, photometric_log_likelihoods, sample_pixels_of_image
+from locnerf.filter.measurement_config import MeasurementConfig, WarpConfig
 from locnerf.filter.warp import WarpReference, beyond_an_edge, project_points, render_reference, sample_image, warp_log_likelihoods, warp_reference_pose
 from locnerf.geometry import se3_exp
-from locnerf.render import PinholeIntrinsics
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.rays import rays_from_poses_and_pixels
 from locnerf.sim.world import ProceduralWorld
 from tests.filter.world_poses import poses_around, true_pose

@@ -8,7 +8,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from locnerf.filter.final_search import CrossEntropyConfig
+from locnerf.filter.search_config import CrossEntropyConfig
 from locnerf.messages import codec, keys, schemas
 from locnerf.render.camera import PinholeIntrinsics
 

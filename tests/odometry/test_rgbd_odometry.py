@@ -13,7 +13,7 @@ from locnerf.filter.depth_measurement import render_depth_image
 from locnerf.geometry import relative_pose, rotation_error_deg, se3_exp, translation_error
 from locnerf.odometry.rgbd import RgbdOdometry, RgbdOdometryConfig, register_colour
 from locnerf.odometry.tracks import rgbd_track
-from locnerf.render import PinholeIntrinsics
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.world import ProceduralWorld
 
 CAMERA = PinholeIntrinsics.from_fov(160, 120, math.radians(60))

@@ -25,8 +25,9 @@ from locnerf.filter.depth_measurement import (
     surface_distance_log_likelihoods,
     warped_depth_log_likelihoods,
 )
-from locnerf.filter.final_search import CrossEntropyConfig
-from locnerf.filter.measurement import MeasurementConfig, WarpConfig, observed_colours, particle_log_likelihoods, sample_pixels
+from locnerf.filter.measurement import observed_colours, particle_log_likelihoods, sample_pixels
+from locnerf.filter.measurement_config import MeasurementConfig, WarpConfig
+from locnerf.filter.search_config import CrossEntropyConfig
 from locnerf.filter.warp import render_reference, warp_log_likelihoods
 from locnerf.geometry.metrics import translation_error
 from locnerf.geometry.se3 import make_pose, pose_inverse, se3_exp

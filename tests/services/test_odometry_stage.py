@@ -19,7 +19,7 @@ from locnerf.messages import keys
 from locnerf.messages.codec import decode
 from locnerf.messages.schemas import Odometry
 from locnerf.odometry.rgbd import RgbdOdometryConfig
-from locnerf.render import PinholeIntrinsics
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.sim.events import DepthFrame, ImageEvent, OdometryEvent, RgbdFrameEvent, depth_millimetres
 from locnerf.sim.world import ProceduralWorld
 from locnerf_services.sensor_ingest.odometry_stage import OdometryStage, OnlineOdometryConfig

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from locnerf.geometry import make_pose, so3_exp
-from locnerf.render import PinholeIntrinsics
+from locnerf.render.camera import PinholeIntrinsics
 from locnerf.render.rays import pixel_grid, rays_from_poses_and_pixels
 from locnerf.sim.world import ProceduralWorld
 from tests.data.rgbd_world import FINE_TEXTURE
