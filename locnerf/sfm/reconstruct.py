@@ -47,7 +47,7 @@ class SfmConfig(BaseModel):
         0.5, gt=0, le=1, description="Fewest images of the capture the reconstruction must pose; below it SfM fails with the images it could not pose."
     )
     threads: int = Field(-1, description="CPU threads of COLMAP (-1: all).")
-    seed: int = Field(0, ge=0, description="Seed of COLMAP's random draws (RANSAC, initial pair).")
+    seed: int = Field(0, ge=0, description="Seed of COLMAP's random draws (RANSAC, initial pair); it fixes the reconstruction only with threads=1.")
 
 
 @dataclass
