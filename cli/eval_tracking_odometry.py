@@ -38,7 +38,12 @@ REPORT = "tracking.json"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """--odometry, --odometry-format, --T-body-cam, --passes (:func:`add_source_arguments`), --out."""
     add_source_arguments(parser)
-    parser.add_argument("--out", type=Path, default=None, help="folder for tracking.json and the TUM files reference.txt, estimate.txt, odometry.txt")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="folder for tracking.json and the TUM files reference.txt, estimate.txt, odometry.txt (and estimate_after_kidnap.txt)",
+    )
 
 
 def add_source_arguments(parser: argparse.ArgumentParser) -> None:

@@ -3,7 +3,8 @@
 :func:`write_run_trajectories` writes, next to a run's JSON report, three TUM files in metres in the
 map's data-set frame: ``reference.txt`` (the ground truth at every scored stamp), ``estimate.txt``
 (the filter's estimate at the stamps the headline scores: from convergence to the end of the
-start phase) and ``odometry.txt`` (the odometry's camera poses at every stamp that had one, in the
+start phase), after a kidnapping ``estimate_after_kidnap.txt`` (the estimate from the kidnapping's stamp
+to the end: the recovery, scored by ``evo_ape`` against ``reference.txt`` the same way) and ``odometry.txt`` (the odometry's camera poses at every stamp that had one, in the
 odometry's own frame). Then ``evo_ape tum reference.txt estimate.txt`` (no alignment: estimate and
 reference share the map's frame, as the headline does) reports, per stamp, the translation errors
 whose median is the headline ``translation_median`` (``--pose_relation angle_deg``: the rotation
@@ -29,7 +30,7 @@ from locnerf.field.protocol import MapNormalization
 from locnerf.geometry import relative_pose, rotation_error_deg, translation_error
 from locnerf.geometry.se3 import pose_inverse
 
-REFERENCE, ESTIMATE, ODOMETRY = "reference.txt", "estimate.txt", "odometry.txt"
+REFERENCE, ESTIMATE, ESTIMATE_AFTER_KIDNAP, ODOMETRY = "reference.txt", "estimate.txt", "estimate_after_kidnap.txt", "odometry.txt"
 
 
 def write_run_trajectories(
@@ -47,7 +48,8 @@ def write_run_trajectories(
         odometry_stamps: (J,) seconds of the odometry poses.
         odometry_poses: (J, 4, 4) float64 ``T_odom_cam``, metres.
     Returns:
-        name -> path of each file written (``estimate`` is absent when the run never converged).
+        name -> path of each file written (``estimate`` is absent when the run never converged,
+        ``estimate_after_kidnap`` without a kidnapping).
     Raises:
         ValueError: a record without poses.
     """
@@ -61,6 +63,9 @@ def write_run_trajectories(
     if settled is not None:
         estimates = normalization.map_to_metric(record.estimates[settled:end])
         written["estimate"] = str(write_tum(folder / ESTIMATE, stamps[settled:end], estimates))
+    if record.kidnap_tick is not None:
+        after = normalization.map_to_metric(record.estimates[end:])
+        written["estimate_after_kidnap"] = str(write_tum(folder / ESTIMATE_AFTER_KIDNAP, stamps[end:], after))
     if len(odometry_stamps):
         written["odometry"] = str(write_tum(folder / ODOMETRY, odometry_stamps.double(), odometry_poses.double()))
     return written

@@ -22,7 +22,7 @@ import torch
 from locnerf.filter import initialization
 from locnerf.filter.ancestor_scores import best_weighed_log_likelihood, current_log_likelihoods
 from locnerf.filter.annealing import AnnealingStage, noise_scale, particle_count, stage_for_spread
-from locnerf.filter.cloud_search import PoseSearch, cloud_within, pose_search, search_move
+from locnerf.filter.cloud_search import PoseSearch, cloud_within, pose_search, search_move, with_own_pixels
 from locnerf.filter.convergence_protection import redrawn_positions
 from locnerf.filter.depth_measurement import (
     DepthObservation,
@@ -50,7 +50,7 @@ from locnerf.filter.recovery import (
 )
 from locnerf.filter.resampling import RESAMPLERS, effective_sample_size
 from locnerf.filter.tempering import tempered, tempering_exponent
-from locnerf.filter.update_likelihood import update_likelihood
+from locnerf.filter.update_likelihood import search_likelihood, update_likelihood
 from locnerf.filter.warp import SurfaceRays, warp_reference_pose
 from locnerf.geometry.validation import validate_poses
 from locnerf.render.camera import PinholeIntrinsics
@@ -478,16 +478,17 @@ class Localizer:
         )
         log_likelihoods = likelihood.score(snap.poses)
         rays = likelihood.fixed_rays + likelihood.rays_per_pose * snap.poses.shape[0]
-        search = self.search_for(snap)
+        search = self.search_for(snap, image)
         found = None
         if search is not None:
+            score, rays_per_pose = search_likelihood(likelihood, search.pixels, search.observed, self.config.measurement, intrinsics, render_rays, self.device)
             found = cross_entropy_search(
                 search.mean,
                 search.covariance,
-                lambda poses: likelihood.score(poses.to(self.device, self.dtype)).cpu(),
+                lambda poses: score(poses.to(self.device, self.dtype)).cpu(),
                 search.config,
                 torch.Generator().manual_seed(search.seed),
-                likelihood.rays_per_pose,
+                rays_per_pose,
             )
             rays += found.rays
         report = self.merge(snap.epoch, snap.generation, snap.ids, log_likelihoods, lambda: self.keyframe_candidates(image, intrinsics), likelihood.warped)
@@ -495,16 +496,18 @@ class Localizer:
             self.move_by_search(search, found)
         return dataclasses.replace(report, rays=rays)
 
-    def search_for(self, snap: UpdateSnapshot) -> PoseSearch | None:
-        """The search an update of ``snap`` carries (``recovery.search`` after the refining updates), from the snapshot's
-        weighted mean and covariance; None when none is due, or while the cloud is wider than ``recovery.search_max_spread``
-        (the search stays due)."""
+    def search_for(self, snap: UpdateSnapshot, image: torch.Tensor) -> PoseSearch | None:
+        """The search an update of ``snap`` on ``image`` (H, W, 3) carries (``recovery.search`` after the refining updates),
+        from the snapshot's weighted mean and covariance, with its own colour pixels of ``image`` when the search asks
+        for them (``recovery.search.pixels``); None when none is due, or while the cloud is wider than
+        ``recovery.search_max_spread`` (the search stays due)."""
         weights = self._require_particles().weights
         if not self._recovery.search_due or not cloud_within(snap.poses, weights, self.config.recovery.search_max_spread):
             return None
         seed = int(torch.randint(2**62, (1,), generator=self.generator))
         self.counters["searches"] += 1
-        return pose_search(self._recovery.take_search(), snap.poses, weights, seed, self._moved)
+        search = pose_search(self._recovery.take_search(), snap.poses, weights, seed, self._moved)
+        return with_own_pixels(search, image, self.config.measurement, self.generator)
 
     def move_by_search(self, search: PoseSearch, found: FinalSearchResult) -> bool:
         """Move every particle so that the snapshot's mean lands on the pose the search found, when it scores

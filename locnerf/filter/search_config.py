@@ -11,6 +11,9 @@ MAX_ITERATIONS = 50
 MAX_CANDIDATES = 4096
 """Most poses per round a search may ask for."""
 
+MAX_PIXELS = 16384
+"""Most colour pixels a search may draw for itself (a search travels in update requests)."""
+
 
 class CrossEntropyConfig(BaseModel):
     """The cross-entropy search's budget and spreads (module docstring), on whatever likelihood it is given."""
@@ -31,6 +34,13 @@ class CrossEntropyConfig(BaseModel):
         None, gt=0, description="Widen the first round along the valley: swings about the point this far ahead of the camera (map units; None: off)."
     )
     pivot_sigma_deg: float = Field(1.0, ge=0, description="Standard deviation of those swings about the camera's x and y axes (degrees).")
+    pixels: int | None = Field(
+        None,
+        ge=1,
+        le=MAX_PIXELS,
+        description="Colour pixels the search draws from the image for itself (by the measurement's sampling rule) and renders from every "
+        "candidate in place of the update's colour pixels, the update's depth term kept; None: the update's own likelihood.",
+    )
 
     @model_validator(mode="after")
     def _elite_within_candidates(self) -> CrossEntropyConfig:

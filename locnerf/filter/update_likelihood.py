@@ -38,12 +38,50 @@ class UpdateLikelihood:
         rays_per_pose: rays rendered for each pose scored.
         fixed_rays: rays rendered once for the update (a re-projection's reference).
         warped: the colour term re-projects a reference render (:mod:`locnerf.filter.warp`).
+        depth_term: the depth term of ``score`` alone (None: colour only), for a search on its own colour pixels.
+        depth_rays: rays the depth term renders per pose.
     """
 
     score: PoseScore
     rays_per_pose: int
     fixed_rays: int
     warped: bool
+    depth_term: PoseScore | None = None
+    depth_rays: int = 0
+
+
+def with_depth(colour: PoseScore, depth_term: PoseScore | None) -> PoseScore:
+    """The colour term plus the depth term (per pose; ``colour`` alone when there is none)."""
+    if depth_term is None:
+        return colour
+
+    def score(poses: torch.Tensor) -> torch.Tensor:
+        values = colour(poses)
+        return values + depth_term(poses).to(values)
+
+    return score
+
+
+def search_likelihood(
+    likelihood: UpdateLikelihood,
+    pixels: torch.Tensor | None,
+    observed: torch.Tensor | None,
+    config: MeasurementConfig,
+    intrinsics: PinholeIntrinsics,
+    render_rays: RenderRays,
+    device: torch.device,
+) -> tuple[PoseScore, int]:
+    """What a search of the update scores, and its rays per pose: the update's likelihood, or with a search's own
+    colour ``pixels`` (M, 2) and ``observed`` colours (M, 3) (:func:`locnerf.filter.cloud_search.with_own_pixels`)
+    those rendered in place of the update's colour term, its depth term kept."""
+    if pixels is None or observed is None:
+        return likelihood.score, likelihood.rays_per_pose
+    on_device, colours = pixels.to(device), observed.to(device)
+
+    def colour(poses: torch.Tensor) -> torch.Tensor:
+        return particle_log_likelihoods(poses, on_device, colours, intrinsics, render_rays, config.exponent, config.ray_chunk, config.exposure_gain_range)
+
+    return with_depth(colour, likelihood.depth_term), len(pixels) + likelihood.depth_rays
 
 
 def update_likelihood(
@@ -87,12 +125,7 @@ def update_likelihood(
     if depth is None:
         return UpdateLikelihood(colour, colour_rays, fixed_rays, reference is not None)
     depth_term, depth_rays = _depth_term(config, generator, device, depth, reference, render_surface, surface_distance)
-
-    def score(poses: torch.Tensor) -> torch.Tensor:
-        values = colour(poses)
-        return values + depth_term(poses).to(values)
-
-    return UpdateLikelihood(score, colour_rays + depth_rays, fixed_rays, reference is not None)
+    return UpdateLikelihood(with_depth(colour, depth_term), colour_rays + depth_rays, fixed_rays, reference is not None, depth_term, depth_rays)
 
 
 def _depth_term(

@@ -16,7 +16,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validat
 
 from locnerf.filter.annealing import AnnealingStage
 from locnerf.filter.measurement_config import ExposureGainRange, MeasurementConfig
-from locnerf.filter.search_config import CrossEntropyConfig
+from locnerf.filter.search_config import MAX_PIXELS, CrossEntropyConfig
 from locnerf.messages.stamps import NANOSECONDS_PER_SECOND, nanoseconds_from_seconds, seconds_from_nanoseconds
 from locnerf.render.camera import PinholeIntrinsics
 
@@ -330,6 +330,23 @@ class SearchRequest(_Wire):
     covariance: Covariance6 = Field(description="6×6 covariance of the cloud in the tangent space of `mean` (rotation first), map units and radians.")
     config: CrossEntropyConfig = Field(description="The search's budget and spreads.")
     seed: int = Field(ge=0, lt=2**63, description="Seed of the search's draws.")
+    pixels: list[list[float]] | None = Field(
+        None, max_length=MAX_PIXELS, description="(M, 2) the search's own colour pixels (u, v), rendered in place of the shard's; None: the shard's."
+    )
+    observed_rgb: list[list[float]] | None = Field(None, max_length=MAX_PIXELS, description="(M, 3) observed colours in [0, 1] of `pixels`.")
+
+    @model_validator(mode="after")
+    def _own_pixels(self) -> SearchRequest:
+        if (self.pixels is None) != (self.observed_rgb is None):
+            raise ValueError("search request: expected both pixels and observed_rgb, or neither")
+        if self.pixels is not None and (
+            len(self.pixels) != len(self.observed_rgb)
+            or not self.pixels
+            or any(len(p) != 2 for p in self.pixels)
+            or any(len(c) != 3 for c in self.observed_rgb)
+        ):
+            raise ValueError("search request: expected pixels (M, 2) and observed_rgb (M, 3) of equal length M >= 1")
+        return self
 
 
 class SearchFound(_Wire):

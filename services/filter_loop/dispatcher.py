@@ -216,7 +216,14 @@ class UpdateDispatcher:
         update = _Update(uuid.uuid4().hex[:12], snapshot, now, image, search)
         searching = None
         if search is not None:
-            searching = SearchRequest(mean=search.mean.tolist(), covariance=search.covariance.tolist(), config=search.config, seed=search.seed)
+            searching = SearchRequest(
+                mean=search.mean.tolist(),
+                covariance=search.covariance.tolist(),
+                config=search.config,
+                seed=search.seed,
+                pixels=search.pixels.tolist() if search.pixels is not None else None,
+                observed_rgb=search.observed.tolist() if search.observed is not None else None,
+            )
         poses = snapshot.poses.detach().double().cpu().reshape(-1, 16)
         ids = snapshot.ids.cpu()
         common = {

@@ -512,7 +512,7 @@ class FilterLoop:
             measurement.exposure_gain_range,
             warp,
             depth_part,
-            localizer.search_for(snapshot),
+            localizer.search_for(snapshot, image),
         )
         return self._requests(addressed)
 

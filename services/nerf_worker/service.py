@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -23,10 +22,11 @@ from locnerf.filter.depth_measurement import (
 )
 from locnerf.filter.final_search import cross_entropy_search
 from locnerf.filter.measurement import particle_log_likelihoods
+from locnerf.filter.update_likelihood import PoseScore, with_depth
 from locnerf.filter.warp import WarpReference, render_reference, warp_log_likelihoods
 from locnerf.geometry.validation import InvalidPoseError, validate_poses
 from locnerf.maps.source import map_identity
-from locnerf.messages.schemas import DepthRequest, RefusalReason, SearchFound, SearchRequest, UpdateRefusal, UpdateRequest, UpdateResult
+from locnerf.messages.schemas import DepthRequest, RefusalReason, SearchFound, UpdateRefusal, UpdateRequest, UpdateResult
 from locnerf_services.rgbd import depth_observation
 
 logger = logging.getLogger(__name__)
@@ -104,9 +104,9 @@ class NerfWorker:
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
         poses = poses.to(device)
-        score = self._likelihood(request)
+        score, depth_term = self._likelihood(request)
         log_likelihoods = score(poses)
-        found = self._search(request.search, score) if request.search is not None else None
+        found = self._search(request, score, depth_term) if request.search is not None else None
         return UpdateResult(
             request_id=request.request_id,
             shard=request.shard,
@@ -119,10 +119,11 @@ class NerfWorker:
             search=found,
         )
 
-    def _likelihood(self, request: UpdateRequest) -> Callable[[torch.Tensor], torch.Tensor]:
+    def _likelihood(self, request: UpdateRequest) -> tuple[PoseScore, PoseScore | None]:
         """The request's log-likelihood, poses (N, 4, 4) on the map's device -> (N,): the colour term by re-projection
         (a warp request, on a map that places surfaces) or by rendering the request's pixels, plus the depth term of an
-        RGB-D request. The reference render and the depth image are prepared once."""
+        RGB-D request; and that depth term alone (None: colour only). The reference render and the depth image are
+        prepared once."""
         depth = self._depth_observation(request.depth) if request.depth is not None else None
         reference = None
         if request.warp is not None and self.render_surface is not None:
@@ -138,24 +139,31 @@ class NerfWorker:
                 self._warned_warp = True
 
             def colour(poses: torch.Tensor) -> torch.Tensor:
-                return self._render(request, poses)
+                return self._render(request, request.pixels, request.observed_rgb, poses)
 
         if request.depth is None or depth is None:
-            return colour
+            return colour, None
 
-        def score(poses: torch.Tensor) -> torch.Tensor:
-            values = colour(poses)
-            return values + self._depth(request.depth, depth, poses, reference).to(values)
+        def depth_term(poses: torch.Tensor) -> torch.Tensor:
+            return self._depth(request.depth, depth, poses, reference)
 
-        return score
+        return with_depth(colour, depth_term), depth_term
 
-    def _search(self, search: SearchRequest, score: Callable[[torch.Tensor], torch.Tensor]) -> SearchFound:
-        """The request's search (:func:`locnerf.filter.final_search.cross_entropy_search`) on its own likelihood ``score``."""
+    def _search(self, request: UpdateRequest, score: PoseScore, depth_term: PoseScore | None) -> SearchFound:
+        """The request's search (:func:`locnerf.filter.final_search.cross_entropy_search`) on its own likelihood ``score``,
+        or, when the search brings its own colour pixels, on those rendered with the request's depth term ``depth_term``."""
+        search = request.search
         mean = torch.tensor(search.mean, dtype=torch.float64)
         try:
             validate_poses(mean, name="search mean")
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
+        if search.pixels is not None:
+
+            def own_colour(poses: torch.Tensor) -> torch.Tensor:
+                return self._render(request, search.pixels, search.observed_rgb, poses)
+
+            score = with_depth(own_colour, depth_term)
         found = cross_entropy_search(
             mean,
             torch.tensor(search.covariance, dtype=torch.float64),
@@ -165,14 +173,15 @@ class NerfWorker:
         )
         return SearchFound(pose=found.pose.tolist(), log_likelihood=found.log_likelihood, start_log_likelihood=found.start_log_likelihood)
 
-    def _render(self, request: UpdateRequest, poses: torch.Tensor) -> torch.Tensor:
-        """Eq. 5 by rendering the request's pixels from every pose (N, 4, 4) -> (N,)."""
+    def _render(self, request: UpdateRequest, pixel_list: list[list[float]], observed_list: list[list[float]], poses: torch.Tensor) -> torch.Tensor:
+        """Eq. 5 by rendering ``pixel_list`` (M, 2) of the request's image, seen as ``observed_list`` (M, 3), from every
+        pose (N, 4, 4) -> (N,)."""
         device = self.map.device
-        pixels = torch.tensor(request.pixels, dtype=torch.float32).reshape(-1, 2)
+        pixels = torch.tensor(pixel_list, dtype=torch.float32).reshape(-1, 2)
         size = request.intrinsics
         if len(pixels) == 0 or not bool(((pixels >= 0) & (pixels < torch.tensor([size.width, size.height]))).all()):
             raise RequestError(f"request pixels: expected 1 or more (u, v) inside the {size.width}×{size.height} image")
-        observed = torch.tensor(request.observed_rgb, dtype=torch.float32).reshape(-1, 3)
+        observed = torch.tensor(observed_list, dtype=torch.float32).reshape(-1, 3)
         return particle_log_likelihoods(
             poses,
             pixels.to(device),

@@ -347,6 +347,26 @@ def test_a_search_after_the_refining_updates_moves_the_cloud_onto_the_likelihood
         assert reports[2].rays == 64 * 200
 
 
+def test_a_search_with_its_own_pixels_draws_them_from_the_image_and_renders_them_from_every_candidate(generator):
+    """``pixels`` 512: the search carries 512 distinct pixels of the image with their colours (the oracle: the image at
+    those pixels), the update's report counts 512 rays per candidate (the update's own 64 per particle aside), and the
+    search on them brings the 5.8-cm cloud as close as the test above asks of the update's pixels."""
+    config = CrossEntropyConfig(iterations=10, candidates=128, start_position=0.04, start_rotation_deg=1.5, pixels=512)
+    localizer, truth, _, camera = _offset_cloud_localizer(torch.Generator().manual_seed(1), config)
+    image = render_image(analytic_render_rays, truth.float(), camera)
+    localizer.update(image, camera, analytic_render_rays)
+    search = localizer.search_for(localizer.snapshot(), image)
+    assert search is not None and search.pixels.shape == (512, 2) and len(torch.unique(search.pixels, dim=0)) == 512
+    u, v = search.pixels.long().unbind(-1)
+    torch.testing.assert_close(search.observed, image[v, u])
+    localizer, truth, _, camera = _offset_cloud_localizer(torch.Generator().manual_seed(1), config)
+    reports = [localizer.update(image, camera, analytic_render_rays) for _ in range(3)]
+    assert reports[1].rays == 64 * 200 + 512 * (1 + 10 * 128)
+    assert localizer.counters["searches_moved"] == 1
+    estimate = localizer.estimate().pose
+    assert translation_error(estimate, truth) < 0.029 and rotation_error_deg(estimate, truth) < 0.75
+
+
 def test_moving_by_a_search_offsets_every_particle_in_the_world_frame_once(generator):
     """The snapshot's mean moved onto the find: ``found · mean⁻¹`` composed on the left of every particle (float64
     oracle), only when the gain reaches ``search_min_gain``; a second search of the same snapshot (an update that was

@@ -97,16 +97,23 @@ def test_worker_applies_the_requested_exposure_invariant_likelihood(world, gener
         UpdateRequest.model_validate(request.model_dump() | {"exposure_gain_range": (1.5, 2.0)})
 
 
-def test_worker_searches_on_the_requests_own_likelihood(world, generator):
-    """A request carrying a search answers with the best pose the cross-entropy search found from a start 3 cm off,
-    scored on the request's own pixels: its reported log-likelihood is the measurement model's at that pose (the oracle),
-    at least the start's, and the pose lies closer to the camera than the start; a request without one answers none."""
+def _search_case(world: ProceduralWorld, generator: torch.Generator) -> tuple[UpdateRequest, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A request of two particles (16 pixels of the first one's image), the first one's pose as the truth (4, 4), a
+    search start 3 cm from it, and 256 pixels (256, 2) with their colours (256, 3) seen from the truth."""
     request, poses, _, _ = _request(world, generator, count=2)
     truth = poses[0].double()
     intrinsics = world.default_intrinsics
     pixels = sample_pixels(intrinsics.height, intrinsics.width, 256, generator)
-    colours = observed_colours(world.render_image(truth), pixels)
     start = truth @ se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.03, 0.0, 0.0], dtype=torch.float64))
+    return request, truth, start, pixels, observed_colours(world.render_image(truth), pixels)
+
+
+def test_worker_searches_on_the_requests_own_likelihood(world, generator):
+    """A request carrying a search answers with the best pose the cross-entropy search found from a start 3 cm off,
+    scored on the request's own pixels: its reported log-likelihood is the measurement model's at that pose (the oracle),
+    at least the start's, and the pose lies closer to the camera than the start; a request without one answers none."""
+    request, truth, start, pixels, colours = _search_case(world, generator)
+    intrinsics = world.default_intrinsics
     search = SearchRequest(
         mean=start.tolist(), covariance=torch.eye(6).mul(1e-8).tolist(), config=CrossEntropyConfig(start_position=0.03, start_rotation_deg=1.0), seed=4
     )
@@ -119,6 +126,35 @@ def test_worker_searches_on_the_requests_own_likelihood(world, generator):
     assert found.log_likelihood >= found.start_log_likelihood
     assert float(translation_error(pose, truth)) < float(translation_error(start, truth))
     assert NerfWorker(world, "w").handle(request.model_copy(update={"search": None})).search is None
+
+
+def test_worker_searches_on_the_searchs_own_pixels_when_it_brings_them(world, generator):
+    """A search that brings its own 256 pixels is scored on them (the oracle: the measurement model on those pixels at
+    the found pose and at the start), while the shard's own log-likelihoods stay those of its 16 pixels; its pixels
+    outside the image are a bad request, and a search request with pixels but no colours is refused when built."""
+    request, truth, start, own, own_colours = _search_case(world, generator)
+    poses = torch.tensor(request.poses, dtype=torch.float32).reshape(-1, 4, 4)
+    pixels, colours = torch.tensor(request.pixels), torch.tensor(request.observed_rgb)
+    intrinsics = world.default_intrinsics
+    config = CrossEntropyConfig(start_position=0.03, start_rotation_deg=1.0, pixels=256)
+    search = SearchRequest(
+        mean=start.tolist(), covariance=torch.eye(6).mul(1e-8).tolist(), config=config, seed=4, pixels=own.tolist(), observed_rgb=own_colours.tolist()
+    )
+    result = NerfWorker(world, "w").handle(request.model_copy(update={"search": search}))
+    pose = torch.tensor(result.search.pose, dtype=torch.float64)
+    expected = particle_log_likelihoods(torch.stack((pose, start)).float(), own, own_colours, intrinsics, world.render_rays)
+    assert result.search.log_likelihood == pytest.approx(float(expected[0]), abs=1e-3)
+    assert result.search.start_log_likelihood == pytest.approx(float(expected[1]), abs=1e-3)
+    assert float(translation_error(pose, truth)) < float(translation_error(start, truth))
+    shard = particle_log_likelihoods(poses, pixels, colours, intrinsics, world.render_rays)
+    torch.testing.assert_close(torch.tensor(result.log_likelihoods, dtype=torch.float64), shard)
+    outside = search.model_copy(update={"pixels": [[500.0, 1.0]] * 256})
+    with pytest.raises(RequestError, match="inside the 160×120 image"):
+        NerfWorker(world, "w").handle(request.model_copy(update={"search": outside}))
+    with pytest.raises(ValueError, match="both pixels and observed_rgb, or neither"):
+        SearchRequest.model_validate(search.model_dump() | {"observed_rgb": None})
+    with pytest.raises(ValueError, match=r"pixels \(M, 2\) and observed_rgb \(M, 3\) of equal length"):
+        SearchRequest.model_validate(search.model_dump() | {"observed_rgb": own_colours[:10].tolist()})
 
 
 def test_worker_rejects_pixels_outside_the_image_and_non_rigid_poses(world, generator):
