@@ -76,12 +76,20 @@ def search_likelihood(
     those rendered in place of the update's colour term, its depth term kept."""
     if pixels is None or observed is None:
         return likelihood.score, likelihood.rays_per_pose
+    colour = _rendered_colour(pixels, observed, config, intrinsics, render_rays, device)
+    return with_depth(colour, likelihood.depth_term), len(pixels) + likelihood.depth_rays
+
+
+def _rendered_colour(
+    pixels: torch.Tensor, observed: torch.Tensor, config: MeasurementConfig, intrinsics: PinholeIntrinsics, render_rays: RenderRays, device: torch.device
+) -> PoseScore:
+    """The colour term of ``pixels`` (M, 2) seen as ``observed`` (M, 3), rendered from every pose."""
     on_device, colours = pixels.to(device), observed.to(device)
 
     def colour(poses: torch.Tensor) -> torch.Tensor:
         return particle_log_likelihoods(poses, on_device, colours, intrinsics, render_rays, config.exponent, config.ray_chunk, config.exposure_gain_range)
 
-    return with_depth(colour, likelihood.depth_term), len(pixels) + likelihood.depth_rays
+    return colour
 
 
 def update_likelihood(
@@ -115,12 +123,7 @@ def update_likelihood(
         colour_rays, fixed_rays = 0, reference.rays
     else:
         pixels = sample_pixels_of_image(image, config, generator, config.pixels_for(particles))
-        observed = observed_colours(image, pixels).to(device)
-        on_device = pixels.to(device)
-
-        def colour(poses: torch.Tensor) -> torch.Tensor:
-            return particle_log_likelihoods(poses, on_device, observed, intrinsics, render_rays, config.exponent, config.ray_chunk, config.exposure_gain_range)
-
+        colour = _rendered_colour(pixels, observed_colours(image, pixels), config, intrinsics, render_rays, device)
         colour_rays, fixed_rays = len(pixels), 0
     if depth is None:
         return UpdateLikelihood(colour, colour_rays, fixed_rays, reference is not None)

@@ -322,6 +322,11 @@ class DepthRequest(_Wire):
         return self
 
 
+def _pixels_match_colours(pixels: list[list[float]], colours: list[list[float]]) -> bool:
+    """Whether ``pixels`` is (M, 2) and ``colours`` (M, 3), the same M."""
+    return len(pixels) == len(colours) and all(len(p) == 2 for p in pixels) and all(len(c) == 3 for c in colours)
+
+
 class SearchRequest(_Wire):
     """Search the cloud's estimate on the shard's own likelihood (its pixels, reference and depth points) by the
     cross-entropy method (:func:`locnerf.filter.final_search.cross_entropy_search`); only shard 0 carries it."""
@@ -339,12 +344,7 @@ class SearchRequest(_Wire):
     def _own_pixels(self) -> SearchRequest:
         if (self.pixels is None) != (self.observed_rgb is None):
             raise ValueError("search request: expected both pixels and observed_rgb, or neither")
-        if self.pixels is not None and (
-            len(self.pixels) != len(self.observed_rgb)
-            or not self.pixels
-            or any(len(p) != 2 for p in self.pixels)
-            or any(len(c) != 3 for c in self.observed_rgb)
-        ):
+        if self.pixels is not None and (not self.pixels or not _pixels_match_colours(self.pixels, self.observed_rgb)):
             raise ValueError("search request: expected pixels (M, 2) and observed_rgb (M, 3) of equal length M >= 1")
         return self
 
@@ -386,7 +386,7 @@ class UpdateRequest(_Wire):
     def _shapes(self) -> UpdateRequest:
         if len(self.poses) != len(self.ids) or any(len(p) != 16 for p in self.poses):
             raise ValueError(f"update request: expected poses (K, 16) for K={len(self.ids)} ids")
-        if len(self.pixels) != len(self.observed_rgb) or any(len(p) != 2 for p in self.pixels) or any(len(c) != 3 for c in self.observed_rgb):
+        if not _pixels_match_colours(self.pixels, self.observed_rgb):
             raise ValueError("update request: expected pixels (M, 2) and observed_rgb (M, 3) of equal length")
         expected = self.intrinsics.width * self.intrinsics.height * 3
         if self.warp is not None and len(self.warp.image) != expected:
