@@ -138,8 +138,7 @@ class NerfWorker:
                 logger.warning("the map cannot place surfaces (an NDC or MLP map): re-projection requests are rendered from every pose instead")
                 self._warned_warp = True
 
-            def colour(poses: torch.Tensor) -> torch.Tensor:
-                return self._render(request, request.pixels, request.observed_rgb, poses)
+            colour = self._rendered_colour(request, request.pixels, request.observed_rgb)
 
         if request.depth is None or depth is None:
             return colour, None
@@ -159,11 +158,7 @@ class NerfWorker:
         except (InvalidPoseError, ValueError) as error:
             raise RequestError(str(error)) from None
         if search.pixels is not None:
-
-            def own_colour(poses: torch.Tensor) -> torch.Tensor:
-                return self._render(request, search.pixels, search.observed_rgb, poses)
-
-            score = with_depth(own_colour, depth_term)
+            score = with_depth(self._rendered_colour(request, search.pixels, search.observed_rgb), depth_term)
         found = cross_entropy_search(
             mean,
             torch.tensor(search.covariance, dtype=torch.float64),
@@ -173,24 +168,24 @@ class NerfWorker:
         )
         return SearchFound(pose=found.pose.tolist(), log_likelihood=found.log_likelihood, start_log_likelihood=found.start_log_likelihood)
 
-    def _render(self, request: UpdateRequest, pixel_list: list[list[float]], observed_list: list[list[float]], poses: torch.Tensor) -> torch.Tensor:
+    def _rendered_colour(self, request: UpdateRequest, pixel_list: list[list[float]], observed_list: list[list[float]]) -> PoseScore:
         """Eq. 5 by rendering ``pixel_list`` (M, 2) of the request's image, seen as ``observed_list`` (M, 3), from every
-        pose (N, 4, 4) -> (N,)."""
+        pose (N, 4, 4) -> (N,); the pixels are checked and moved to the map's device once, not per scoring (a search
+        scores its rounds on them)."""
         device = self.map.device
         pixels = torch.tensor(pixel_list, dtype=torch.float32).reshape(-1, 2)
         size = request.intrinsics
         if len(pixels) == 0 or not bool(((pixels >= 0) & (pixels < torch.tensor([size.width, size.height]))).all()):
             raise RequestError(f"request pixels: expected 1 or more (u, v) inside the {size.width}×{size.height} image")
-        observed = torch.tensor(observed_list, dtype=torch.float32).reshape(-1, 3)
-        return particle_log_likelihoods(
-            poses,
-            pixels.to(device),
-            observed.to(device),
-            request.intrinsics,
-            self.map.render_rays,
-            request.exponent,
-            exposure_gain_range=request.exposure_gain_range,
-        )
+        on_device = pixels.to(device)
+        observed = torch.tensor(observed_list, dtype=torch.float32).reshape(-1, 3).to(device)
+
+        def colour(poses: torch.Tensor) -> torch.Tensor:
+            return particle_log_likelihoods(
+                poses, on_device, observed, request.intrinsics, self.map.render_rays, request.exponent, exposure_gain_range=request.exposure_gain_range
+            )
+
+        return colour
 
     def _image(self, request: UpdateRequest) -> torch.Tensor:
         """The warp request's observed image (H, W, 3) in [0, 1] on the map's device."""
